@@ -1,0 +1,43 @@
+# Everything runs from a project-local virtual environment that the first target builds.
+PYTHON ?= python3
+VENV   ?= .venv
+PY      = $(VENV)/bin/python
+BD      = $(VENV)/bin/bayesdamper
+STAMP   = $(VENV)/.installed-stamp
+OUT    ?= results/rig-A
+
+.PHONY: setup demo test test-slow lint analyses-quick bench ci clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+setup: $(STAMP)
+
+# The main job: validate, segment, stage 1, Bayesian stage 2 on rig-A.
+demo: $(STAMP)
+	$(BD) check data/rig-A
+	$(BD) identify data/rig-A --out $(OUT)
+
+# Default test suite (fast); slow statistical checks are `make test-slow`.
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check bayesdamper tests benchmarks analyses
+
+analyses-quick: $(STAMP)
+	@set -e; for s in analyses/*.py; do echo "== $$s --quick"; $(PY) $$s --quick; done
+
+bench: $(STAMP)
+	$(PY) benchmarks/forward.py
+
+ci: test lint test-slow analyses-quick
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

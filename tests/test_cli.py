@@ -1,0 +1,132 @@
+"""The command line: good runs exit 0; every bad input exits non-zero with one clear line, no traceback."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+RIG_A = ROOT / "data" / "rig-A"
+
+
+def run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "bayesdamper", *map(str, args)], capture_output=True,
+                          text=True, cwd=cwd, timeout=600)
+
+
+def assert_clean_error(proc, *needles):
+    assert proc.returncode != 0
+    assert "Traceback" not in proc.stderr
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, proc.stderr
+    for n in needles:
+        assert n in lines[0], lines[0]
+
+
+def test_check_on_rig_a_without_fit():
+    proc = run("check", RIG_A, "--no-fit")
+    assert proc.returncode == 0, proc.stderr
+    assert "33 transient(s)" in proc.stdout
+    assert "C_L12" in proc.stdout and "C_Q21" in proc.stdout
+
+
+@pytest.fixture()
+def rig_copy(tmp_path):
+    dst = tmp_path / "rig"
+    shutil.copytree(RIG_A, dst)
+    for p in dst.iterdir():
+        p.chmod(0o644)
+    return dst
+
+
+def test_missing_folder(tmp_path):
+    assert_clean_error(run("check", tmp_path / "nope"), "nope")
+
+
+def test_missing_toml(rig_copy):
+    (rig_copy / "damper.toml").unlink()
+    assert_clean_error(run("check", rig_copy), "damper.toml")
+
+
+def test_toml_syntax_error(rig_copy):
+    (rig_copy / "damper.toml").write_text("[damper\npiston_area_m2 = 1\n")
+    assert_clean_error(run("check", rig_copy), "damper.toml")
+
+
+def test_missing_key(rig_copy):
+    txt = (rig_copy / "damper.toml").read_text().replace("piston_area_m2 = 0.0042\n", "")
+    (rig_copy / "damper.toml").write_text(txt)
+    assert_clean_error(run("check", rig_copy), "piston_area_m2")
+
+
+def test_nan_in_csv(rig_copy):
+    f = rig_copy / "tri_1p00mm_s.csv"
+    lines = f.read_text().splitlines()
+    lines[100] = "0.396,nan,12.0"
+    f.write_text("\n".join(lines) + "\n")
+    assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv")
+
+
+def test_millimetres(rig_copy):
+    f = rig_copy / "tri_1p00mm_s.csv"
+    lines = f.read_text().splitlines()
+    out = [lines[0]]
+    for ln in lines[1:]:
+        t, y, F = ln.split(",")
+        out.append(f"{t},{float(y) * 1e3},{F}")
+    f.write_text("\n".join(out) + "\n")
+    assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv", "millimetres")
+
+
+def test_binary_junk(rig_copy):
+    (rig_copy / "tri_1p00mm_s.csv").write_bytes(bytes(range(256)) * 20)
+    assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv")
+
+
+def test_too_short(rig_copy):
+    f = rig_copy / "tri_1p00mm_s.csv"
+    f.write_text("\n".join(f.read_text().splitlines()[:300]) + "\n")
+    assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv")
+
+
+def test_bad_settings_are_one_line_errors(rig_copy, tmp_path):
+    assert_clean_error(run("identify", rig_copy, "--out", tmp_path / "o", "--noise-model", "pink"), "pink")
+    assert_clean_error(run("identify", rig_copy, "--out", tmp_path / "o", "--p-r-prior", "5,1"),
+                       "--p-r-prior")
+    assert not (tmp_path / "o").exists()
+
+
+def test_bad_input_leaves_existing_results_untouched(rig_copy, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text('{"keep": true}\n')
+    (rig_copy / "damper.toml").write_text("garbage = [\n")
+    proc = run("identify", rig_copy, "--out", out)
+    assert proc.returncode != 0
+    assert (out / "summary.json").read_text() == '{"keep": true}\n'
+    assert sorted(p.name for p in out.iterdir()) == ["summary.json"]
+
+
+def test_simulate_then_identify_one_transient(tmp_path):
+    data = tmp_path / "sim"
+    proc = run("simulate", data, "--velocities", "1.0", "--seed", "3", "--noise-n", "20")
+    assert proc.returncode == 0, proc.stderr
+    truth = json.loads((data / "truth.json").read_text())
+    assert truth["seed"] == 3 and truth["model"] == "eq7"
+    assert_clean_error(run("simulate", data), "exists")  # no silent overwrite
+    out = tmp_path / "res"
+    proc = run("identify", data, "--out", out, "--only", "tri_1p00mm_s_s0", "--workers", "1", "--no-figures")
+    assert proc.returncode == 0, proc.stderr
+    assert "wall time" in proc.stdout
+    s = json.loads((out / "summary.json").read_text())
+    assert set(s) >= {"dataset", "credible_mass", "static", "segments", "drift"}
+    assert set(s["static"]) == {"CL12", "CQ12", "CL21", "CQ21"}
+    (seg,) = s["segments"]
+    assert set(seg) >= {"id", "test", "kind", "direction", "velocity_m_s", "t_start_s", "alpha_V", "p_R_Pa",
+                        "ls", "J", "rhat_max", "ess_bulk_min", "converged"}
+    assert seg["kind"] == "initial" and seg["direction"] == 1
+    assert seg["alpha_V"]["lo"] <= truth["alpha_V"] <= seg["alpha_V"]["hi"]
+    assert (out / "posteriors" / "tri_1p00mm_s_s0.nc").exists()
