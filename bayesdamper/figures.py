@@ -15,6 +15,9 @@ The plotting itself is in :mod:`bayesdamper.plots`; this module only pages, name
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
+import os
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from . import plots
@@ -24,12 +27,19 @@ from .outputs import save_figure
 FIGURES_DIR = "figures"
 #: Transients per page of Figure 8.
 FIGURE8_PANELS = 12
+#: Formats of the paper's figures.
+PAPER_FORMATS = ("png", "pdf")
 #: Formats of the per-transient diagnostic figures (many files: PNG only).
 DIAGNOSTIC_FORMATS = ("png",)
 #: Histogram bins of the per-transient corner plots (fewer is faster).
 CORNER_BINS = 20
 #: Draws shown per corner plot at most (evenly thinned).
 CORNER_MAX_SAMPLES = 10000
+#: Fewest figures worth starting worker processes for.
+MIN_JOBS_FOR_POOL = 6
+
+#: One figure to draw: (output key, name of the plots function, args, kwargs, stem, formats).
+Job = tuple[str, str, tuple, dict, Path, tuple[str, ...]]
 
 
 def _n_ensembles(summary: dict, n_chains: int) -> int:
@@ -37,15 +47,31 @@ def _n_ensembles(summary: dict, n_chains: int) -> int:
     return int(n) if n and n_chains % int(n) == 0 else 1
 
 
-def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: dict) -> dict[str, list[str]]:
+def _render(job: Job) -> list[Path]:
+    """Draw one figure with :mod:`bayesdamper.plots` and save it (runs in a worker process)."""
+    _, func, args, kwargs, stem, formats = job
+    return save_figure(getattr(plots, func)(*args, **kwargs), stem, formats)
+
+
+def _run(jobs: list[Job], workers: int) -> list[list[Path]]:
+    if workers <= 1 or len(jobs) < MIN_JOBS_FOR_POOL:
+        return [_render(j) for j in jobs]
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
+        # jobs are ordered slowest first (multi-format paper figures), so the workers finish together
+        return list(ex.map(_render, jobs, chunksize=1))
+
+
+def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: dict, *,
+                           workers: int | None = None) -> dict[str, list[str]]:
     """Write every figure of an ``identify`` run and return where they went.
 
     Parameters
     ----------
     out_dir : Path
         The run's output folder; figures go to ``out_dir / "figures"``.
-    ds : bayesdamper.data.Dataset
-        The data set (its name titles the figures).
+    ds : bayesdamper.data.Dataset or None
+        The data set (its name titles the paper's figures).
     segs : sequence of bayesdamper.segmentation.SegmentedRecord
         Segmented records (not needed by the current figures; part of the stable signature).
     static : bayesdamper.static.StaticFit
@@ -54,12 +80,15 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
         Stage-2 results, in summary order.
     summary : dict
         The run summary (``segments``, ``drift``, ``credible_mass``, ``settings``).
+    workers : int, optional
+        Processes drawing figures in parallel (default: the number of CPUs); 1 draws in this process.
 
     Returns
     -------
     dict of str to list of str
         ``"figure3_static"``, ``"figure8_transients"``, ``"figure9_drift"``, ``"corner"`` and
-        ``"trace"``, each mapped to its files' paths relative to ``out_dir`` (POSIX separators).
+        ``"trace"``, each mapped to its files' paths relative to ``out_dir`` (POSIX separators), in
+        result order.
     """
     del segs  # kept in the signature for figures that need the raw segments
     out_dir = Path(out_dir)
@@ -67,34 +96,33 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
     for sub in ("", "corner", "trace"):
         (fig_dir / sub).mkdir(parents=True, exist_ok=True)
     mass = float(summary.get("credible_mass", 0.9))
-    written: dict[str, list[str]] = {k: [] for k in
-                                     ("figure3_static", "figure8_transients", "figure9_drift", "corner", "trace")}
-
-    def save(key: str, fig, stem: Path, formats: tuple[str, ...] = ("png", "pdf")) -> None:
-        if ds is not None and key.startswith("figure"):
-            fig.suptitle(f"data set {ds.name!r}", fontsize=9, x=0.01, ha="left", color="0.35")
-        for p in save_figure(fig, stem, formats):
-            written[key].append(Path(p).relative_to(out_dir).as_posix())
-
-    save("figure3_static", plots.figure3_static(static), fig_dir / "figure3_static")
-
+    name = f"data set {ds.name!r}" if ds is not None else None
     results = list(results)
+
+    jobs: list[Job] = [("figure3_static", "figure3_static", (static,), {"title": name},
+                        fig_dir / "figure3_static", PAPER_FORMATS)]
     n_pages = math.ceil(len(results) / FIGURE8_PANELS)
     for k in range(n_pages):
         page = results[k * FIGURE8_PANELS:(k + 1) * FIGURE8_PANELS]
-        save("figure8_transients", plots.figure8_transients(page, FIGURE8_PANELS, credible_mass=mass),
-             fig_dir / f"figure8_transients_p{k + 1}")
-
+        title = (name or "") + (f", page {k + 1} of {n_pages}" if n_pages > 1 else "")
+        jobs.append(("figure8_transients", "figure8_transients", (page, FIGURE8_PANELS),
+                     {"credible_mass": mass, "title": title.lstrip(", ") or None},
+                     fig_dir / f"figure8_transients_p{k + 1}", PAPER_FORMATS))
     entries = summary.get("segments") or [r.entry for r in results]
     if entries:
-        save("figure9_drift", plots.figure9_drift(entries, summary.get("drift") or None, mass),
-             fig_dir / "figure9_drift")
-
+        jobs.append(("figure9_drift", "figure9_drift", (entries, summary.get("drift") or None, mass),
+                     {"title": name}, fig_dir / "figure9_drift", PAPER_FORMATS))
     for r in results:
         sid = r.entry["id"]
-        save("corner", plots.corner_plot(r, bins=CORNER_BINS, max_samples=CORNER_MAX_SAMPLES,
-                                         credible_mass=mass),
-             fig_dir / "corner" / sid, DIAGNOSTIC_FORMATS)
-        save("trace", plots.trace_rank_plot(r, _n_ensembles(summary, r.chains.shape[0])),
-             fig_dir / "trace" / sid, DIAGNOSTIC_FORMATS)
+        jobs.append(("corner", "corner_plot", (r,),
+                     {"bins": CORNER_BINS, "max_samples": CORNER_MAX_SAMPLES, "credible_mass": mass},
+                     fig_dir / "corner" / sid, DIAGNOSTIC_FORMATS))
+        jobs.append(("trace", "trace_rank_plot", (r, _n_ensembles(summary, r.chains.shape[0])), {},
+                     fig_dir / "trace" / sid, DIAGNOSTIC_FORMATS))
+
+    workers = workers if workers is not None else (os.cpu_count() or 1)
+    written: dict[str, list[str]] = {k: [] for k in
+                                     ("figure3_static", "figure8_transients", "figure9_drift", "corner", "trace")}
+    for job, paths in zip(jobs, _run(jobs, workers), strict=True):
+        written[job[0]].extend(Path(p).relative_to(out_dir).as_posix() for p in paths)
     return written

@@ -76,7 +76,7 @@ def _param_label(name: str) -> tuple[str, float]:
 
 
 # --------------------------------------------------------------------------------------- Figure 3
-def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAND_SE):
+def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAND_SE, title: str | None = None):
     """Figure 3: stage-1 plateau points and the fitted eq. (4) curve per flow direction.
 
     Parameters
@@ -95,6 +95,8 @@ def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAN
     matplotlib.figure.Figure
         One axes; |Q| [10^-6 m^3/s] against |Δp| [MPa]. The fitted lines carry gids
         ``"static-fit-12"`` / ``"static-fit-21"``, the plateau points ``"plateaus-12"`` / ``"plateaus-21"``.
+    title : str, optional
+        Figure title (e.g. the data set's name).
     """
     fig = _figure((6.4, 4.6))
     ax = fig.add_subplot()
@@ -124,7 +126,7 @@ def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAN
     ax.set_ylabel("pressure drop |Δp| [MPa]")
     ax.set_xlim(left=0)
     ax.set_ylim(bottom=0)
-    ax.set_title("Stage 1: pressure-flow characteristic, eq. (4)")
+    ax.set_title("Stage 1: pressure-flow characteristic, eq. (4)" + (f", {title}" if title else ""))
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
     return fig
@@ -149,7 +151,7 @@ def _drift_note(d: Mapping, name: str, credible_mass: float) -> str:
 
 
 def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, credible_mass: float = 0.9, *,
-                  dodge: float = 0.012):
+                  dodge: float = 0.012, title: str | None = None):
     """Figure 9: identified p_R and 100/α_V against piston speed, with credible intervals.
 
     Parameters
@@ -166,6 +168,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     dodge : float
         Horizontal offset between the direction/kind groups at one speed [mm/s], so that error bars
         at the same speed do not hide one another.
+    title : str, optional
+        Figure title (e.g. the data set's name).
 
     Returns
     -------
@@ -228,6 +232,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     ax_a.set_ylabel("gas-liquid volume ratio 100/α_V [%]")
     ax_p.set_title("(a) reference pressure")
     ax_a.set_title("(b) gas content")
+    if title:
+        fig.suptitle(title, fontsize=10)
 
     handles = [Line2D([], [], color=s["color"], lw=0, marker="s", ms=7, label=f"direction {s['label']}")
                for d_, s in DIRECTION_STYLE.items() if any(g[0] == d_ for g in groups)]
@@ -249,7 +255,7 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
 
 # --------------------------------------------------------------------------------------- Figure 8
 def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 4,
-                       credible_mass: float = 0.9):
+                       credible_mass: float = 0.9, title: str | None = None):
     """Figure 8: measured transients with the posterior predictive band and the Nelder-Mead fit.
 
     Parameters
@@ -264,6 +270,8 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
         Panels per row (at most).
     credible_mass : float
         Mass of the predictive band (for the legend only).
+    title : str, optional
+        Figure title (e.g. the data set's name and the page).
 
     Returns
     -------
@@ -276,7 +284,12 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
     n = len(rs)
     ncols = max(1, min(ncols, n))
     nrows = math.ceil(n / ncols)
-    fig = _figure((3.1 * ncols, 2.5 * nrows + 0.5))
+    # Fixed margins rather than a layout engine: this figure is drawn once per page of every run.
+    height = 2.5 * nrows + 0.7 + (0.35 if title else 0.0)
+    fig = _figure((3.1 * ncols, height), layout=None)
+    fig.subplots_adjust(left=0.35 / ncols + 0.02, right=0.99, top=1 - (0.8 if title else 0.45) / height,
+                        bottom=0.75 / height,
+                        hspace=0.75, wspace=0.3)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax in axes[n:]:
         fig.delaxes(ax)
@@ -301,7 +314,10 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
         if i + ncols >= n:
             ax.set_xlabel("time since step [s]", fontsize=8)
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncols=4, fontsize=8, frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncols=4, fontsize=8, frameon=False,
+               bbox_to_anchor=(0.5, 0.0))
+    if title:
+        fig.suptitle(title, fontsize=10, y=1 - 0.1 / height, va="top")
     return fig
 
 
@@ -351,9 +367,13 @@ def corner_plot(result, *, bins: int = 20, max_samples: int | None = 20000, cred
     k = flat.shape[1]
     fig = _figure((2.3 * k + 0.4, 2.3 * k + 0.4), layout=None)
     corner.corner(flat, fig=fig, bins=bins, labels=labels, truths=truths, truth_color="C3", range=ranges,
-                  quantiles=q, title_quantiles=q, show_titles=True, title_fmt=".3g",
-                  title_kwargs={"fontsize": 8}, label_kwargs={"fontsize": 9}, plot_datapoints=False,
-                  smooth=1.0)
+                  quantiles=q, show_titles=False, label_kwargs={"fontsize": 9}, plot_datapoints=False,
+                  smooth=1.0, max_n_ticks=4)
+    # Plain-text titles (corner's own use mathtext, whose parsing dominates the drawing time).
+    lo, med, hi = np.quantile(flat, q, axis=0)
+    diag = np.array(fig.axes).reshape(k, k).diagonal()
+    for ax, label, a, m, b in zip(diag, labels, lo, med, hi, strict=True):
+        ax.set_title(f"{label.split(' [')[0]} = {m:.3g}\n[{a:.3g}, {b:.3g}] ({_pct(credible_mass)})", fontsize=8)
     fig.suptitle(f"{result.entry.get('id', '')}: posterior (red: Nelder-Mead point)", y=1.02, fontsize=10)
     return fig
 
@@ -387,8 +407,12 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
 
     n_walkers = n_chains // n_ensembles
     shown = min(walkers_per_ensemble, n_walkers)
-    fig = _figure((10.0, 2.2 * ndim + 0.6))
-    axes = fig.subplots(ndim, 2, squeeze=False, width_ratios=[2.2, 1])
+    # Fixed margins rather than a layout engine: one of these is drawn per transient of every run.
+    height = 2.0 * ndim + 0.9
+    fig = _figure((10.0, height), layout=None)
+    fig.subplots_adjust(left=0.09, right=0.98, top=1 - 0.6 / height, bottom=0.45 / height, hspace=0.12,
+                        wspace=0.12)
+    axes = fig.subplots(ndim, 2, squeeze=False, width_ratios=[2.2, 1], sharex="col")
     draw = np.arange(n_draws)
     edges = np.linspace(0.5, n_chains * n_draws + 0.5, bins + 1)
     expected = n_walkers * n_draws / bins

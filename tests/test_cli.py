@@ -112,7 +112,7 @@ def test_bad_input_leaves_existing_results_untouched(rig_copy, tmp_path):
 
 def test_simulate_then_identify_one_transient(tmp_path):
     data = tmp_path / "sim"
-    proc = run("simulate", data, "--velocities", "1.0", "--seed", "3", "--noise-n", "20")
+    proc = run("simulate", data, "--velocities", "0.5,1.0,1.5", "--seed", "3", "--noise-n", "20")
     assert proc.returncode == 0, proc.stderr
     truth = json.loads((data / "truth.json").read_text())
     assert truth["seed"] == 3 and truth["model"] == "eq7"
