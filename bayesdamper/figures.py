@@ -53,10 +53,27 @@ def _render(job: Job) -> list[Path]:
     return save_figure(getattr(plots, func)(*args, **kwargs), stem, formats)
 
 
+def _warm_up() -> None:
+    """Draw one small figure, so that forked workers inherit loaded fonts and caches."""
+    import io
+
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(2.0, 2.0))
+    ax = fig.add_subplot()
+    ax.plot([0.0, 1.0])
+    ax.set_title("α_V, p_R [MPa]")
+    fig.savefig(io.BytesIO(), format="png")
+
+
 def _run(jobs: list[Job], workers: int) -> list[list[Path]]:
     if workers <= 1 or len(jobs) < MIN_JOBS_FOR_POOL:
         return [_render(j) for j in jobs]
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    if "fork" in mp.get_all_start_methods():
+        ctx = mp.get_context("fork")
+        _warm_up()
+    else:
+        ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
         # jobs are ordered slowest first (multi-format paper figures), so the workers finish together
         return list(ex.map(_render, jobs, chunksize=1))
@@ -121,8 +138,8 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
                      fig_dir / "trace" / sid, DIAGNOSTIC_FORMATS))
 
     workers = workers if workers is not None else (os.cpu_count() or 1)
-    written: dict[str, list[str]] = {k: [] for k in
-                                     ("figure3_static", "figure8_transients", "figure9_drift", "corner", "trace")}
+    keys = ("figure3_static", "figure8_transients", "figure9_drift", "corner", "trace")
+    written: dict[str, list[str]] = {k: [] for k in keys}
     for job, paths in zip(jobs, _run(jobs, workers), strict=True):
         written[job[0]].extend(Path(p).relative_to(out_dir).as_posix() for p in paths)
     return written

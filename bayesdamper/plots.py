@@ -76,7 +76,8 @@ def _param_label(name: str) -> tuple[str, float]:
 
 
 # --------------------------------------------------------------------------------------- Figure 3
-def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAND_SE, title: str | None = None):
+def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAND_SE,
+                   title: str | None = None):
     """Figure 3: stage-1 plateau points and the fitted eq. (4) curve per flow direction.
 
     Parameters
@@ -133,6 +134,17 @@ def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAN
 
 
 # --------------------------------------------------------------------------------------- Figure 9
+def _plain_log_formatter(**kwargs):
+    """Log-axis tick labels as plain numbers, on the ticks matplotlib's LogFormatter would label."""
+    from matplotlib.ticker import LogFormatter
+
+    class PlainLogFormatter(LogFormatter):
+        def __call__(self, x, pos=None):
+            return f"{x:g}" if super().__call__(x, pos) else ""
+
+    return PlainLogFormatter(**kwargs)
+
+
 def _groups(entries: Sequence[Mapping]) -> list[tuple[int, str]]:
     present = {(int(e["direction"]), str(e["kind"])) for e in entries}
     order = [(1, "initial"), (1, "reversal"), (-1, "initial"), (-1, "reversal")]
@@ -151,7 +163,7 @@ def _drift_note(d: Mapping, name: str, credible_mass: float) -> str:
 
 
 def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, credible_mass: float = 0.9, *,
-                  dodge: float = 0.012, title: str | None = None):
+                  dodge: float = 0.012, yscale: str = "log", title: str | None = None):
     """Figure 9: identified p_R and 100/α_V against piston speed, with credible intervals.
 
     Parameters
@@ -168,6 +180,9 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     dodge : float
         Horizontal offset between the direction/kind groups at one speed [mm/s], so that error bars
         at the same speed do not hide one another.
+    yscale : {"log", "linear"}
+        Scale of both vertical axes. Log by default: the priors are log-uniform and posteriors of
+        poorly constrained transients span decades (the paper's Fig. 9 is linear).
     title : str, optional
         Figure title (e.g. the data set's name).
 
@@ -176,7 +191,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     matplotlib.figure.Figure
         Two axes: p_R [MPa] and 100/α_V [%] against |V_P| [mm/s]. Each axes holds one error-bar
         container per (direction, kind) group of converged transients, plus one grey container per
-        group that has non-converged transients. The 100/α_V interval is [100/hi, 100/lo].
+        group that has non-converged transients (grey face and bars, direction colour on the marker
+        edge). The 100/α_V interval is [100/hi, 100/lo].
     """
     from matplotlib.lines import Line2D
 
@@ -196,6 +212,7 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
                 continue
             any_grey |= not converged
             c = colour if converged else NOT_CONVERGED_COLOR
+            edge = colour  # keeps the direction visible on greyed (non-converged) points
             v = np.array([e["velocity_m_s"] for e in sel]) * SPEED_DISPLAY + offsets[g]
             p = np.array([[e["p_R_Pa"][k] for k in ("median", "lo", "hi")] for e in sel]) * PRESSURE_DISPLAY
             a = np.array([[e["alpha_V"][k] for k in ("median", "hi", "lo")] for e in sel])
@@ -205,9 +222,9 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
             tag = f"{'12' if direction == 1 else '21'}-{kind}-{'ok' if converged else 'not-converged'}"
             for ax, y, ls_y in ((ax_p, p, ls_p), (ax_a, inv, ls_a)):
                 err = np.maximum(np.vstack([y[:, 0] - y[:, 1], y[:, 2] - y[:, 0]]), 0.0)
-                ax.errorbar(v, y[:, 0], yerr=err, ls="none", marker=marker, color=c, ms=5, capsize=2,
-                            lw=1, zorder=3, gid=f"posterior-{tag}")
-                ax.plot(v, ls_y, ls="none", marker=marker, mfc="none", mec=c, ms=9, mew=1,
+                ax.errorbar(v, y[:, 0], yerr=err, ls="none", marker=marker, color=c, mec=edge, ms=6,
+                            capsize=2, lw=1, zorder=3, gid=f"posterior-{tag}")
+                ax.plot(v, ls_y, ls="none", marker=marker, mfc="none", mec=edge, ms=10, mew=1,
                         zorder=2, gid=f"ls-{tag}")
     speeds = np.array([e["velocity_m_s"] for e in entries], dtype=float)
     have_line = False
@@ -223,15 +240,19 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
             y = np.where(y > 0, 100.0 / np.where(y > 0, y, 1.0), np.nan)
         ax.plot(vg * SPEED_DISPLAY, y, color="k", lw=1.2, zorder=1, gid=f"drift-{name}")
         have_line = True
-        ax.text(0.02, 0.97, _drift_note(d, name, credible_mass), transform=ax.transAxes, va="top",
-                ha="left", fontsize=8, bbox={"boxstyle": "round", "fc": "white", "ec": "0.8", "alpha": 0.9})
-    for ax in (ax_p, ax_a):
+        # above the axes, under the panel title, so that it never hides data
+        ax.text(0.5, 1.015, _drift_note(d, name, credible_mass), transform=ax.transAxes, va="bottom",
+                ha="center", fontsize=8, gid=f"drift-note-{name}")
+    for ax, panel in ((ax_p, "(a) reference pressure"), (ax_a, "(b) gas content")):
         ax.set_xlabel("piston speed |V_P| [mm/s]")
-        ax.grid(alpha=0.3)
+        ax.set_yscale(yscale)
+        if yscale == "log":  # plain numbers ("20", "0.5") rather than mathtext powers of ten
+            ax.yaxis.set_major_formatter(_plain_log_formatter(labelOnlyBase=False))
+            ax.yaxis.set_minor_formatter(_plain_log_formatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
+        ax.grid(alpha=0.3, which="both" if yscale == "linear" else "major")
+        ax.set_title(panel, fontsize=11, pad=30 if ax.texts else 6)
     ax_p.set_ylabel("reference pressure p_R [MPa]")
     ax_a.set_ylabel("gas-liquid volume ratio 100/α_V [%]")
-    ax_p.set_title("(a) reference pressure")
-    ax_a.set_title("(b) gas content")
     if title:
         fig.suptitle(title, fontsize=10)
 
@@ -244,8 +265,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
                           label=f"posterior median, {_pct(credible_mass)} credible interval"))
     handles.append(Line2D([], [], color="k", lw=0, marker="o", mfc="none", ms=9, label="Nelder-Mead (LS)"))
     if any_grey:
-        handles.append(Line2D([], [], color=NOT_CONVERGED_COLOR, lw=0, marker="o", ms=6,
-                              label="sampler not converged"))
+        handles.append(Line2D([], [], color=NOT_CONVERGED_COLOR, lw=0, marker="o", mec="k", ms=6,
+                              label="sampler not converged (grey)"))
     if have_line:
         handles.append(Line2D([], [], color="k", lw=1.2, label="trend, posterior median"))
     fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=8,
@@ -285,11 +306,10 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
     ncols = max(1, min(ncols, n))
     nrows = math.ceil(n / ncols)
     # Fixed margins rather than a layout engine: this figure is drawn once per page of every run.
-    height = 2.5 * nrows + 0.7 + (0.35 if title else 0.0)
+    height = 2.3 * nrows + 0.7 + (0.35 if title else 0.0)
     fig = _figure((3.1 * ncols, height), layout=None)
-    fig.subplots_adjust(left=0.35 / ncols + 0.02, right=0.99, top=1 - (0.8 if title else 0.45) / height,
-                        bottom=0.75 / height,
-                        hspace=0.75, wspace=0.3)
+    fig.subplots_adjust(left=0.35 / ncols + 0.02, right=0.99, top=1 - (0.75 if title else 0.45) / height,
+                        bottom=0.75 / height, hspace=0.6, wspace=0.3)
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for ax in axes[n:]:
         fig.delaxes(ax)
@@ -301,7 +321,7 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
         ax.plot(t, np.asarray(r.force) * FORCE_DISPLAY, color="0.45", lw=0.7, label="measured")
         ax.fill_between(t, band[0], band[2], color=colour, alpha=0.3, lw=0,
                         label=f"{_pct(credible_mass)} posterior predictive")
-        ax.plot(t, band[1], color=colour, lw=1.3, label="posterior predictive median")
+        ax.plot(t, band[1], color=colour, lw=1.3, label="posterior predictive median (blue 12, red 21)")
         ax.plot(t, np.asarray(r.ls_force) * FORCE_DISPLAY, color="k", ls="--", lw=1.0, label="Nelder-Mead")
         ok = bool(e.get("converged", True))
         ls_j = e.get("ls", {}).get("J", float("nan"))
@@ -371,9 +391,13 @@ def corner_plot(result, *, bins: int = 20, max_samples: int | None = 20000, cred
                   smooth=1.0, max_n_ticks=4)
     # Plain-text titles (corner's own use mathtext, whose parsing dominates the drawing time).
     lo, med, hi = np.quantile(flat, q, axis=0)
-    diag = np.array(fig.axes).reshape(k, k).diagonal()
+    grid = np.array(fig.axes).reshape(k, k)
+    diag = grid.diagonal()
+    for i, j in zip(*np.triu_indices(k, 1), strict=True):
+        fig.delaxes(grid[i, j])  # corner leaves the upper triangle as blank axes; drop them
     for ax, label, a, m, b in zip(diag, labels, lo, med, hi, strict=True):
-        ax.set_title(f"{label.split(' [')[0]} = {m:.3g}\n[{a:.3g}, {b:.3g}] ({_pct(credible_mass)})", fontsize=8)
+        name = label.split(" [")[0]
+        ax.set_title(f"{name} = {m:.3g}\n[{a:.3g}, {b:.3g}] ({_pct(credible_mass)})", fontsize=8)
     fig.suptitle(f"{result.entry.get('id', '')}: posterior (red: Nelder-Mead point)", y=1.02, fontsize=10)
     return fig
 
@@ -403,6 +427,7 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
     n_chains, n_draws, ndim = chains.shape
     if n_ensembles < 1 or n_chains % n_ensembles:
         raise ValueError(f"{n_chains} chains cannot be split into {n_ensembles} equal ensembles")
+    from matplotlib.ticker import MaxNLocator, NullLocator
     from scipy.stats import rankdata
 
     n_walkers = n_chains // n_ensembles
@@ -426,23 +451,28 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
         ax.set_ylabel(label, fontsize=9)
         ax.grid(alpha=0.3)
         ranks = rankdata(chains[:, :, k].ravel()).reshape(n_chains, n_draws)
-        counts = [np.histogram(ranks[e * n_walkers:(e + 1) * n_walkers], edges)[0] for e in range(n_ensembles)]
+        counts = [np.histogram(ranks[e * n_walkers:(e + 1) * n_walkers], edges)[0]
+                  for e in range(n_ensembles)]
         height = 1.15 * max(expected, max(c.max() for c in counts))
         axr = axes[k, 1]
         for e, c in enumerate(counts):
             axr.stairs(c + e * height, edges, baseline=e * height, fill=True, color=f"C{e % 10}", alpha=0.7)
             axr.axhline(e * height + expected, color="k", ls="--", lw=0.7)
-        axr.set_yticks([e * height for e in range(n_ensembles)],
-                       labels=[f"ens. {e + 1}" for e in range(n_ensembles)], fontsize=7)
+        # ensembles are told apart by colour (legend of the trace panel); few ticks keep drawing fast
+        axr.yaxis.set_major_locator(NullLocator())
+        axr.xaxis.set_major_locator(MaxNLocator(3))
         axr.set_xlim(edges[0], edges[-1])
         axr.tick_params(axis="x", labelsize=7)
+        ax.yaxis.set_major_locator(MaxNLocator(4))
     axes[-1, 0].set_xlabel("draw (after burn-in, thinned) [-]")
     axes[-1, 1].set_xlabel("rank among all draws [-]")
     axes[0, 0].set_title(f"traces, {shown} walker(s) per ensemble", fontsize=9)
-    axes[0, 1].set_title("rank histograms per ensemble", fontsize=9)
+    axes[0, 1].set_title("rank histograms per ensemble (bottom: 1)", fontsize=9)
     ent = result.entry
+    state = "" if "converged" not in ent else (", converged" if ent["converged"] else ", NOT converged")
     fig.suptitle(f"{ent.get('id', '')}: R-hat max {ent.get('rhat_max', float('nan')):.3f}, "
-                 f"bulk ESS min {ent.get('ess_bulk_min', float('nan')):.0f}", fontsize=10)
+                 f"bulk ESS min {ent.get('ess_bulk_min', float('nan')):.0f}{state}",
+                 fontsize=10, color="k" if ent.get("converged", True) else "C3")
     axes[0, 0].legend(loc="upper right", fontsize=7, ncols=min(n_ensembles, 4))
     return fig
 
@@ -519,7 +549,8 @@ def figure6_parametric(velocity: float = 1.5e-3, *, curves: Mapping | None = Non
         ax_a.plot(t, np.asarray(f) * FORCE_DISPLAY, ls=styles[i % 3], color=f"C{i}", lw=1.5,
                   label=f"1/α_V = {ia:.3g}")
     for ax in (ax_p, ax_a):
-        ax.axhline(c["steady_force_N"] * FORCE_DISPLAY, color="0.5", ls=":", lw=1, label="steady state, eq. (4)")
+        ax.axhline(c["steady_force_N"] * FORCE_DISPLAY, color="0.5", ls=":", lw=1,
+                   label="steady state, eq. (4)")
         ax.set_xlabel("time since step [s]")
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=8)

@@ -113,17 +113,68 @@ def _moves(name: str):
     if name == "stretch":
         return None
     if name == "de":
+        # DE follows ridges; the stretch share pulls a walker that strayed into a low-probability
+        # corner back to the others (DE alone moves it by the ensemble's own small differences).
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+    if name == "de-snooker":
         return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
     raise ValueError(f"unknown move {name!r}")
 
 
 def initial_positions(start: np.ndarray, lower: np.ndarray, upper: np.ndarray, n_walkers: int,
-                      rng: np.random.Generator) -> np.ndarray:
-    """A dispersed ball of ``n_walkers`` points around ``start``, inside the prior box."""
+                      rng: np.random.Generator, scale: np.ndarray | None = None) -> np.ndarray:
+    """A ball of ``n_walkers`` points around ``start``, inside the prior box.
+
+    ``scale`` is a covariance of the posterior near ``start`` (a Laplace approximation): the ball's
+    centre is drawn one standard deviation away from ``start`` and its walkers one more, so independent
+    ensembles start overdispersed relative to the posterior, as R-hat needs. Without ``scale`` a
+    diagonal ball of ``START_SPREAD`` of the prior box is used.
+    """
     span = upper - lower
-    centre = start + START_SPREAD * span * rng.standard_normal(start.size) * 0.2
-    pos = centre + START_SPREAD * 0.2 * span * rng.standard_normal((n_walkers, start.size))
-    return np.clip(pos, lower + 1e-6 * span, upper - 1e-6 * span)
+    if scale is None:
+        scale = np.diag((START_SPREAD * 0.2 * span) ** 2)
+    chol = np.linalg.cholesky(scale)
+    centre = start + chol @ rng.standard_normal(start.size)
+    pos = centre + rng.standard_normal((n_walkers, start.size)) @ chol.T
+    # Reflect at the prior bounds rather than clip: clipped walkers would share a coordinate exactly,
+    # and neither DE nor stretch moves can ever separate them again.
+    pos = np.where(pos > upper, 2 * upper - pos, pos)
+    pos = np.where(pos < lower, 2 * lower - pos, pos)
+    bad = (pos <= lower) | (pos >= upper)
+    pos[bad] = (lower + rng.uniform(0.25, 0.75, pos.shape) * span)[bad]
+    return pos
+
+
+def laplace_covariance(log_prob: Callable[[np.ndarray], float], x0: np.ndarray, lower: np.ndarray,
+                       upper: np.ndarray) -> np.ndarray | None:
+    """Covariance of the Laplace approximation at ``x0``: the inverse of minus the Hessian of the
+    log-posterior by central finite differences. None if it is not positive definite (a ridge that
+    runs into a prior bound, say): the caller then falls back to a fixed ball.
+    """
+    n = x0.size
+    h = 1e-4 * (upper - lower)
+    f0 = log_prob(x0)
+    hess = np.empty((n, n))
+    for i in range(n):
+        ei = np.zeros(n)
+        ei[i] = h[i]
+        hess[i, i] = (log_prob(x0 + ei) - 2 * f0 + log_prob(x0 - ei)) / h[i] ** 2
+        for j in range(i):
+            ej = np.zeros(n)
+            ej[j] = h[j]
+            hess[i, j] = hess[j, i] = (log_prob(x0 + ei + ej) - log_prob(x0 + ei - ej) - log_prob(x0 - ei + ej)
+                                       + log_prob(x0 - ei - ej)) / (4 * h[i] * h[j])
+    if not np.all(np.isfinite(hess)):
+        return None
+    try:
+        cov = np.linalg.inv(-hess)
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return None
+    # never start wider than a quarter of the prior box in any direction
+    sd = np.sqrt(np.diag(cov))
+    shrink = np.minimum(1.0, 0.25 * (upper - lower) / sd)
+    return cov * np.outer(shrink, shrink)
 
 
 def _tau(chain: np.ndarray) -> np.ndarray:
@@ -160,6 +211,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     start = np.asarray(start, dtype=float)
     ndim = start.size
     seeds = np.random.SeedSequence(seed).spawn(settings.n_ensembles)
+    scale = laplace_covariance(log_prob, start, lower, upper)
     samplers, states = [], []
     for ss in seeds:
         rng = np.random.default_rng(ss)
@@ -170,7 +222,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
             s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=_moves(settings.move))
         # emcee copies NumPy's global state at construction; give each ensemble its own instead.
         s.random_state = np.random.RandomState(rng.integers(2**32 - 1)).get_state()
-        p0 = initial_positions(start, lower, upper, settings.n_walkers, rng)
+        p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)
         samplers.append(s)
         states.append(p0)
 

@@ -43,7 +43,8 @@ def _entry(i: int, direction: int, kind: str, v: float, converged: bool = True) 
         "p_R_Pa": {"median": p, "lo": 0.9 * p, "hi": 1.2 * p},
         "ls": {"alpha_V": 1.05 * a, "p_R_Pa": 0.97 * p, "J": 0.05},
         "J": 0.04, "rhat_max": 1.005, "ess_bulk_min": 1500.0, "converged": converged,
-        "posterior_mean": {"alpha_V": a, "p_R_Pa": p}, "posterior_sd": {"alpha_V": 0.1 * a, "p_R_Pa": 0.1 * p},
+        "posterior_mean": {"alpha_V": a, "p_R_Pa": p},
+        "posterior_sd": {"alpha_V": 0.1 * a, "p_R_Pa": 0.1 * p},
     }
 
 
@@ -92,7 +93,13 @@ def test_figure3_curves_pass_through_predict(static_fit):
     assert len(ax.collections) == 2  # one ±2 SE band per direction
     for band, fit in zip(ax.collections, (static_fit.forward, static_fit.backward), strict=True):
         verts = band.get_paths()[0].vertices
-        assert np.all(np.isfinite(verts))
+        for q in fit.flow_rate:
+            ys = verts[np.isclose(verts[:, 0], q * plots.FLOW_DISPLAY, rtol=1e-12, atol=0), 1]
+            g = np.array([q, q * q])
+            half = plots.STATIC_BAND_SE * np.sqrt(g @ fit.covariance @ g) * plots.PRESSURE_DISPLAY
+            assert ys.max() - ys.min() == pytest.approx(2 * half, rel=1e-9)
+            mid = (ys.max() + ys.min()) / 2
+            assert mid == pytest.approx(fit.predict(q) * plots.PRESSURE_DISPLAY, rel=READBACK_RTOL)
 
 
 def test_figure9_one_errorbar_container_per_group(entries):
@@ -153,7 +160,10 @@ def test_figure8_panels_and_bands(results):
 def test_corner_plot(results):
     fig = plots.corner_plot(results[0], bins=10)
     assert isinstance(fig, Figure)
-    assert len(fig.axes) == len(NAMES) ** 2
+    k = len(NAMES)
+    assert len(fig.axes) == k * (k + 1) // 2  # lower triangle and diagonal; the blank upper ones removed
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert len(titles) == k and titles[0].startswith("α_V = ")
 
 
 def test_trace_rank_plot(results):

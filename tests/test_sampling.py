@@ -62,8 +62,12 @@ def test_same_seed_same_samples():
 
 @pytest.mark.parametrize("velocity", [0.5e-3, 1.5e-3])
 def test_recovery_on_synthetic_eq7(velocity):
-    """Truth inside the 90 % intervals of every transient, all converged (AR(1) default noise model)."""
-    settings = StageTwoSettings()
+    """Truth inside the 99 % intervals of every transient, all converged (AR(1) default noise model).
+
+    Six intervals per case (3 transients x 2 parameters): at 99 % each, a calibrated posterior misses
+    at least one about 6 % of the time; calibration at 90 % itself is tested in test_coverage.py.
+    """
+    settings = StageTwoSettings(credible_mass=0.99)
     for tr in synthetic_transients(velocity, seed=11):
         res = identify_transient(tr, RIG_A_DAMPER, PAPER_FLOW, settings, seed=5)
         e = res.entry
@@ -88,3 +92,13 @@ def test_shape_report_flags_ridge_and_bound():
     edge = np.column_stack([rng.uniform(4.97, 5.0, 1000), rng.normal(0, 1, 1000)])
     assert shape_report(edge, np.array([-5.0, -5.0]), np.array([5.0, 5.0]))["at_prior_bound"]
     assert space.ndim == 2
+
+
+def test_initial_positions_near_a_bound_stay_distinct():
+    """A start on a prior bound must not put walkers on one shared value (they would never separate)."""
+    from bayesdamper.sampling import initial_positions
+
+    lower, upper = np.zeros(2), np.ones(2)
+    pos = initial_positions(np.array([1.0, 0.5]), lower, upper, 12, np.random.default_rng(0))
+    assert np.all((pos > lower) & (pos < upper))
+    assert len(np.unique(pos[:, 0])) == 12
