@@ -26,6 +26,36 @@ from .sampling import SamplerSettings, sample_posterior
 THIN_PER_TAU = 2
 #: Posterior draws pushed through the model for the predictive bands of Figure 8.
 N_PREDICTIVE = 200
+#: Draws of the stage-1 flow coefficients used to measure how much their uncertainty moves (α_V, p_R).
+N_STATIC_DRAWS = 8
+#: Ratio (sd of the optimum under static draws) / (posterior sd) below which the stage-1 uncertainty is
+#: negligible: it would widen the interval by less than sqrt(1 + 0.3^2) - 1 = 4.4 %.
+STATIC_NEGLIGIBLE_RATIO = 0.3
+
+
+def static_sensitivity(problem: TransientProblem, space: ParameterSpace, static_draws: np.ndarray,
+                       start: tuple[float, float], posterior_sd_log: np.ndarray) -> dict:
+    """How far the eq. (9) optimum moves when the flow coefficients are redrawn from stage 1.
+
+    Each row of ``static_draws`` ([C_L12, C_Q12, C_L21, C_Q21]) replaces the point estimate, the
+    optimum is re-polished by Nelder-Mead from ``start``, and the spread of the optima (in log α_V and
+    log p_R) is compared with the posterior sd of the same quantities.
+    """
+    from .params import FlowCoefficients
+
+    optima = []
+    for c in static_draws:
+        try:
+            flow = FlowCoefficients(*np.abs(c))
+        except Exception:  # a draw with a zero pair: skip it
+            continue
+        pf = fit_point(problem.with_flow(flow), space, starts=(start,))
+        optima.append(np.log([pf.alpha_v, pf.p_r]))
+    if len(optima) < 2:
+        return {"ratio": {"alpha_V": float("nan"), "p_R_Pa": float("nan")}, "negligible": False}
+    ratio = np.std(np.array(optima), axis=0, ddof=1) / np.maximum(posterior_sd_log, 1e-300)
+    return {"ratio": {"alpha_V": float(ratio[0]), "p_R_Pa": float(ratio[1])},
+            "negligible": bool(np.all(ratio < STATIC_NEGLIGIBLE_RATIO))}
 
 
 @dataclass
@@ -129,7 +159,8 @@ def shape_report(samples: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> d
 
 def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficients,
                        settings: StageTwoSettings, seed: int, out_nc: Path | None = None,
-                       provenance: dict | None = None, progress=None) -> TransientResult:
+                       provenance: dict | None = None, progress=None,
+                       static_draws: np.ndarray | None = None) -> TransientResult:
     """Point fit and posterior of one transient.
 
     If ``out_nc`` is given, the posterior is written there (atomically) with its provenance.
@@ -172,6 +203,9 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
     }
     if "phi" in space.names:
         entry["phi"] = summarise(phys[:, 2], settings.credible_mass)
+    if static_draws is not None:
+        entry["static_sensitivity"] = static_sensitivity(
+            problem, space, static_draws, (float(med[0]), float(med[1])), np.std(flat[:, :2], axis=0))
     tau_min = float(np.min(res.tau))
     thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
     ch = res.chain[:, ::thin]  # (E, T, W, D)

@@ -96,8 +96,8 @@ def _bounds(values, name: str) -> tuple[float, float] | None:
 
 
 def _worker(args) -> TransientResult:
-    tr, damper, flow, settings, seed, nc, prov = args
-    return identify_transient(tr, damper, flow, settings, seed, nc, prov)
+    tr, damper, flow, settings, seed, nc, prov, draws = args
+    return identify_transient(tr, damper, flow, settings, seed, nc, prov, static_draws=draws)
 
 
 def _pool(workers: int):
@@ -106,10 +106,15 @@ def _pool(workers: int):
 
 
 def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int, workers: int,
-                 posterior_dir: Path | None, provenance: dict, progress: Progress) -> list[TransientResult]:
-    """Stage 2 for every transient, on ``workers`` processes; results in input order."""
+                 posterior_dir: Path | None, provenance: dict, progress: Progress,
+                 static_draws: np.ndarray | None = None) -> list[TransientResult]:
+    """Stage 2 for every transient, on ``workers`` processes; results in input order.
+
+    ``static_draws`` (rows of [C_L12, C_Q12, C_L21, C_Q21] from stage 1) switch on the check of how
+    much the stage-1 uncertainty moves each transient's optimum.
+    """
     tasks = [(tr, damper, flow, settings, seed,
-              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance)
+              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws)
              for tr in transients]
     results: list[TransientResult | None] = [None] * len(tasks)
 
@@ -185,9 +190,13 @@ def run_identify(data_dir: str, out: str, *, seed: int = 0, credible_mass: float
     prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
             "dataset_sha256": ds.sha256, "versions": versions(), "tmax_s": tmax, "run_seed": seed}
     progress(f"stage 1 done; sampling {len(transients)} transient(s) on {workers} worker(s)")
+    from .identify import N_STATIC_DRAWS, STATIC_NEGLIGIBLE_RATIO
+
+    draws = static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
     results = identify_all(transients, ds.damper, static.coefficients, settings, seed, workers, post_dir,
-                           prov, progress)
+                           prov, progress, draws)
     entries = [r.entry for r in results]
+    ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")] for e in entries])
     summary = {
         "dataset": ds.name, "credible_mass": credible_mass,
         "static": static.intervals(credible_mass),
@@ -195,6 +204,15 @@ def run_identify(data_dir: str, out: str, *, seed: int = 0, credible_mass: float
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
         "n_converged": int(sum(e["converged"] for e in entries)),
+        "static_uncertainty": {
+            "method": f"optimum re-fitted under {N_STATIC_DRAWS} draws of the stage-1 coefficients; ratio = "
+                      "sd of the optima / posterior sd (log parameters)",
+            "max_ratio": {"alpha_V": float(np.nanmax(ratios[:, 0])), "p_R_Pa": float(np.nanmax(ratios[:, 1]))},
+            "median_ratio": {"alpha_V": float(np.nanmedian(ratios[:, 0])),
+                             "p_R_Pa": float(np.nanmedian(ratios[:, 1]))},
+            "threshold": STATIC_NEGLIGIBLE_RATIO,
+            "negligible": bool(all(e["static_sensitivity"]["negligible"] for e in entries)),
+        },
     }
     if figures:
         from .figures import write_identify_figures
