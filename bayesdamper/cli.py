@@ -66,6 +66,19 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
     i.add_argument("--only", default=None, help="comma-separated segment ids to run (default: all)")
     i.add_argument("--no-figures", action="store_true")
+
+    g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit")
+    g.add_argument("data_dir")
+    g.add_argument("--out", required=True)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--effects", default=None,
+                   help="comma-separated candidate effects (default: all of friction, backlash, actuator_lag, "
+                        "valve_dynamics, series_compliance, inertia)")
+    g.add_argument("--workers", type=int, default=0, help="worker processes (0: all cores)")
+    g.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
+    g.add_argument("--credible-mass", type=_mass, default=0.9)
+    g.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
+    g.add_argument("--no-figures", action="store_true")
     return p
 
 
@@ -82,6 +95,13 @@ def main(argv: list[str] | None = None) -> int:
             run_simulate(args.out_dir, velocities_mm_s=args.velocities, alpha_v=args.alpha_v, p_r=args.p_r,
                          noise_n=args.noise_n, noise_phi=args.noise_phi, seed=args.seed,
                          sample_rate=args.sample_rate, model=args.model, overwrite=args.force)
+        elif args.command == "diagnose":
+            from .diagnosis import run_diagnosis
+
+            run_diagnosis(args.data_dir, args.out, seed=args.seed,
+                          effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
+                          workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
+                          max_steps=args.max_steps, figures=not args.no_figures)
         elif args.command == "identify":
             from .workflows import run_identify
 

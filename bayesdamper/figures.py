@@ -20,6 +20,8 @@ import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
+
 from . import plots
 from .outputs import save_figure
 
@@ -143,3 +145,41 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
     for job, paths in zip(jobs, _run(jobs, workers), strict=True):
         written[job[0]].extend(Path(p).relative_to(out_dir).as_posix() for p in paths)
     return written
+
+
+def _pick(results, per_group: int = 1) -> list:
+    """Transients at the lowest, middle and highest speed of every (kind, direction) group."""
+    out = []
+    for kind, d in (("initial", 1), ("reversal", -1), ("reversal", 1)):
+        grp = sorted([r for r in results if r.entry["kind"] == kind and r.entry["direction"] == d],
+                     key=lambda r: r.entry["velocity_m_s"])
+        if grp:
+            idx = sorted({0, len(grp) // 2, len(grp) - 1})
+            out += [grp[i] for i in idx]
+    return out
+
+
+def write_diagnosis_figures(out_dir: Path, transients, base, final, base_resid, final_resid,
+                            diagnosis: dict, *, workers: int | None = None) -> dict[str, list[str]]:
+    """Residuals before/after, Figure 8 and Figure 9 before/after, into ``out_dir/figures/``."""
+    fig_dir = Path(out_dir) / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    rows = [{"kind": tr.kind, "direction": tr.direction, "velocity_m_s": tr.velocity,
+             "t": np.asarray(tr.time) - tr.t_step, "before": b, "after": a}
+            for tr, b, a in zip(transients, base_resid, final_resid, strict=True)]
+    sel = ", ".join(diagnosis["selected"]) or "none"
+    mass = diagnosis.get("settings", {}).get("credible_mass", 0.9)
+    jobs: list[Job] = [
+        ("residuals", "residual_figure", (rows,), {"title": f"residuals: eq. (7) (top) and with {sel} (bottom)"},
+         fig_dir / "residuals_before_after", ("png", "pdf")),
+        ("figure8_before", "figure8_transients", (_pick(base),), {"title": "before: eq. (7)"},
+         fig_dir / "figure8_before", ("png", "pdf")),
+        ("figure8_after", "figure8_transients", (_pick(final),), {"title": f"after: eq. (7) + {sel}"},
+         fig_dir / "figure8_after", ("png", "pdf")),
+        ("figure9_before", "figure9_drift", ([r.entry for r in base], diagnosis["drift_before"], mass),
+         {"title": "before: eq. (7)"}, fig_dir / "figure9_before", ("png", "pdf")),
+        ("figure9_after", "figure9_drift", ([r.entry for r in final], diagnosis["drift_after"], mass),
+         {"title": f"after: eq. (7) + {sel}"}, fig_dir / "figure9_after", ("png", "pdf")),
+    ]
+    paths = _run(jobs, workers or os.cpu_count() or 1)
+    return {j[0]: [str(p.relative_to(out_dir)) for p in ps] for j, ps in zip(jobs, paths, strict=True)}

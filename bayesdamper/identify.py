@@ -160,13 +160,16 @@ def shape_report(samples: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> d
 def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficients,
                        settings: StageTwoSettings, seed: int, out_nc: Path | None = None,
                        provenance: dict | None = None, progress=None,
-                       static_draws: np.ndarray | None = None) -> TransientResult:
+                       static_draws: np.ndarray | None = None, problem=None) -> TransientResult:
     """Point fit and posterior of one transient.
+
+    ``problem`` replaces the default eq. (7) :class:`TransientProblem` (e.g. a model with effects; it
+    needs ``simulate_force(alpha_v, p_r)``, ``force``, ``time`` and ``dp0``).
 
     If ``out_nc`` is given, the posterior is written there (atomically) with its provenance.
     """
     t0 = time.perf_counter()
-    problem = TransientProblem.from_transient(transient, damper, flow)
+    problem = problem if problem is not None else TransientProblem.from_transient(transient, damper, flow)
     space = settings.space()
     noise = make_noise_model(settings.noise_model)
     logpost = LogPosterior(problem, noise, space)

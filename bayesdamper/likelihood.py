@@ -172,8 +172,14 @@ class LogPosterior:
         self._upper = self.space.upper
 
     def batch(self, thetas: np.ndarray) -> np.ndarray:
-        """Log-posterior of each row of ``thetas``, shape (n, ndim) -> (n,) (emcee ``vectorize=True``)."""
+        """Log-posterior of each row of ``thetas``, shape (n, ndim) -> (n,) (emcee ``vectorize=True``).
+
+        Compiled for the plain eq. (7) :class:`TransientProblem`; any other problem (a model with
+        effects) goes through its own ``simulate_force`` row by row.
+        """
         p = self.problem
+        if not isinstance(p, TransientProblem):
+            return np.array([self.reference(t) for t in np.atleast_2d(thetas)])
         d = p.damper
         thetas = np.ascontiguousarray(np.atleast_2d(thetas), dtype=np.float64)
         return _log_posterior_batch(thetas, self._lower, self._upper, self.noise.code, p.time, p.knot_times,

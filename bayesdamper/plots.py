@@ -561,3 +561,40 @@ def figure6_parametric(velocity: float = 1.5e-3, *, curves: Mapping | None = Non
     ax_a.set_title(f"(b) α_V varied, p_R = {c['fixed_p_r_Pa'] * PRESSURE_DISPLAY:.3g} MPa, "
                    f"V_P = {v:.3g} mm/s", fontsize=10)
     return fig
+
+
+def residual_figure(rows: Sequence[Mapping], *, title: str | None = None):
+    """Residual F_C − F_E [kN] against time since the step, before (top) and after (bottom) the loop.
+
+    Parameters
+    ----------
+    rows : sequence of mappings
+        One per transient: ``kind``, ``direction``, ``velocity_m_s``, ``t`` (time since step [s],
+        ndarray), ``before`` and ``after`` (residuals [N], ndarrays).
+    """
+    import matplotlib as mpl
+
+    groups = [("initial", 1), ("reversal", -1), ("reversal", 1)]
+    fig = _figure((13.0, 6.5))
+    axes = fig.subplots(2, 3, sharex=True, sharey="row")
+    v = np.array([r["velocity_m_s"] for r in rows])
+    norm = mpl.colors.Normalize(v.min() * 1e3, v.max() * 1e3)
+    cmap = mpl.colormaps["viridis"]
+    for j, (kind, d) in enumerate(groups):
+        for r in rows:
+            if r["kind"] != kind or r["direction"] != d:
+                continue
+            c = cmap(norm(r["velocity_m_s"] * 1e3))
+            axes[0, j].plot(r["t"], np.asarray(r["before"]) / 1e3, color=c, lw=0.6)
+            axes[1, j].plot(r["t"], np.asarray(r["after"]) / 1e3, color=c, lw=0.6)
+        axes[0, j].set_title(f"{kind}, direction {d:+d}")
+        axes[1, j].set_xlabel("time since step [s]")
+    axes[0, 0].set_ylabel("residual before [kN]")
+    axes[1, 0].set_ylabel("residual after [kN]")
+    for ax in axes.flat:
+        ax.grid(alpha=0.3)
+        ax.axhline(0.0, color="k", lw=0.5)
+    fig.colorbar(mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="piston speed [mm/s]")
+    if title:
+        fig.suptitle(title)
+    return fig

@@ -40,7 +40,8 @@ class EffectParam:
     off : float
         Value at which the parameter has no effect [unit] (``inf`` for a stiffness).
     slot : str
-        Name of the slot of the augmented effect vector this parameter fills.
+        Name of the slot of the augmented effect vector this parameter fills
+        (:data:`bayesdamper.augmented.EFFECT_SLOTS`).
     reciprocal : bool
         The slot holds ``1 / value`` (a stiffness stored as a compliance, so that 0 = off).
     """
@@ -65,7 +66,7 @@ class EffectParam:
         if not (self.lower <= self.default <= self.upper or self.default == self.off):
             raise SettingsError(f"effect parameter {self.name}: default outside the prior and not off")
         if not self.slot:
-            object.__setattr__(self, "slot", self.name)
+            raise SettingsError(f"effect parameter {self.name}: no slot of the effect vector given")
 
     def to_slot(self, value: float) -> float:
         """Slot value of a parameter value (``1/value`` for a reciprocal parameter, ``1/inf = 0``)."""

@@ -1,0 +1,87 @@
+"""Backlash: free play between the actuator (whose displacement is measured) and the piston.
+
+A play operator of total width ``gap`` (half-width r = gap / 2): the piston stays still while the
+actuator moves inside the play; once the actuator reaches a side of the play it drags the piston
+along, ``y_P = y_A - r`` when pushing forward and ``y_A + r`` when pulling back. After each reversal
+the piston therefore rests until the actuator has moved ``gap``; from rest with the piston centred
+in the play (the default) until it has moved ``gap / 2``.
+
+On a piecewise-linear actuator displacement the play operator is exactly piecewise linear: each
+linear segment adds at most one knot (where the actuator takes up the play), so it is applied as a
+transform of the knots (:func:`backlash_knots`), never as an ODE state.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import SettingsError
+from .base import Effect, EffectParam
+
+__all__ = ["EFFECT", "backlash_knots"]
+
+#: Engagement points closer than this to a knot are merged into it [s] (keeps knot times strictly
+#: increasing by far more than the kernel's step-size floor).
+MERGE_TIME_S = 1e-9
+
+EFFECT = Effect(
+    name="backlash",
+    description="free play between actuator and piston: after each reversal the piston rests until the "
+                "actuator has taken up the gap",
+    params=(
+        EffectParam("gap_m", "m", 1.0e-7, 1.0e-3, 1.0e-5, True,
+                    "total free play between the measured actuator displacement and the piston", slot="gap"),
+    ),
+)
+
+
+def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
+                   y_piston0: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Piston displacement knots behind a play of total width ``gap``, exactly (module docstring).
+
+    Parameters
+    ----------
+    knot_t, knot_y : ndarray, shape (n_knots,)
+        Strictly increasing knot times [s] and actuator displacement there [m].
+    gap : float
+        Total free play [m], >= 0 (0 returns copies of the knots).
+    y_piston0 : float, optional
+        Piston displacement at ``knot_t[0]`` [m]; default ``knot_y[0]`` (centred in the play).
+        Clipped into ``[knot_y[0] - gap/2, knot_y[0] + gap/2]``.
+
+    Returns
+    -------
+    knot_t, knot_y : ndarray, shape (n_out,)
+        Knots of the piston displacement, ``n_knots <= n_out <= 2 n_knots - 1``: every input knot
+        plus at most one engagement knot per segment.
+    """
+    kt = np.asarray(knot_t, dtype=float)
+    ky = np.asarray(knot_y, dtype=float)
+    if not (np.isfinite(gap) and gap >= 0):
+        raise SettingsError(f"backlash gap must be finite and >= 0 m, got {gap!r}")
+    if gap == 0:
+        return kt.copy(), ky.copy()
+    r = 0.5 * float(gap)
+    yp = float(ky[0]) if y_piston0 is None else float(y_piston0)
+    yp = min(max(yp, float(ky[0]) - r), float(ky[0]) + r)
+    times, ys = [float(kt[0])], [yp]
+    for k in range(kt.size - 1):
+        ta, tb, ya, yb = float(kt[k]), float(kt[k + 1]), float(ky[k]), float(ky[k + 1])
+        s = (yb - ya) / (tb - ta)
+        if s == 0.0:
+            times.append(tb)
+            ys.append(yp)
+            continue
+        side = -r if s > 0 else r  # the contact: y_P = y_A + side while the actuator drags
+        te = ta + (yp - side - ya) / s  # the actuator reaches the contact
+        if te >= tb - MERGE_TIME_S:  # stays inside the play over the whole segment
+            times.append(tb)
+            ys.append(yp)
+            continue
+        if te > ta + MERGE_TIME_S:
+            times.append(te)
+            ys.append(yp)
+        yp = yb + side
+        times.append(tb)
+        ys.append(yp)
+    return np.asarray(times), np.asarray(ys)

@@ -1,0 +1,62 @@
+"""Residual diagnosis: noise from plateaus, the structure test, the criterion, and the closed loop."""
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from bayesdamper.diagnosis import (
+    SELECT_DELTA_BIC,
+    effective_sizes,
+    plateau_noise,
+    pooled_j,
+    structure_test,
+)
+
+RATE = 250.0
+NOISE_SD = 20.0
+
+
+def _segs(rng, n_plateaus=6, seconds=3.0, phi=0.0):
+    t = np.arange(0.0, n_plateaus * seconds, 1 / RATE)
+    e = rng.standard_normal(t.size) * NOISE_SD
+    if phi:
+        for i in range(1, e.size):
+            e[i] = phi * e[i - 1] + np.sqrt(1 - phi**2) * e[i]
+    f = 1000.0 + 5.0 * t + e  # slow drift on the plateaus is removed by the detrending
+    plateaus = [SimpleNamespace(t_start=k * seconds + 0.1, t_end=(k + 1) * seconds - 0.1) for k in range(n_plateaus)]
+    rec = SimpleNamespace(time=t, force=f, sample_rate=RATE)
+    return [SimpleNamespace(record=rec, plateaus=plateaus)]
+
+
+def test_plateau_noise_recovers_sd():
+    noise = plateau_noise(_segs(np.random.default_rng(0)))
+    # 4000+ samples: the sd is estimated to ~1.5 %
+    assert noise["sigma_N"] == pytest.approx(NOISE_SD, rel=0.05)
+    assert abs(noise["rho"]) < 0.1
+
+
+def test_structure_test_false_alarm_rate_and_power():
+    rng = np.random.default_rng(1)
+    noise = plateau_noise(_segs(rng, n_plateaus=10))
+    t = np.arange(0.0, 3.0, 1 / RATE)
+    alarms = [structure_test(rng.standard_normal(t.size) * NOISE_SD, RATE, noise)["structured"] for _ in range(200)]
+    # alpha = 1e-3; allow a few false alarms in 200 (the dof are approximations)
+    assert sum(alarms) <= 4
+    bump = 60.0 * np.exp(-((t - 0.6) / 0.2) ** 2)  # a 60 N smooth bump: 3x the noise sd
+    hits = [structure_test(bump + rng.standard_normal(t.size) * NOISE_SD, RATE, noise)["structured"]
+            for _ in range(50)]
+    assert np.mean(hits) > 0.95
+
+
+def test_effective_size_and_pooled_j():
+    rng = np.random.default_rng(2)
+    white = rng.standard_normal(1000)
+    smooth = np.convolve(rng.standard_normal(1100), np.ones(100) / 100, mode="valid")[:1000]
+    n = effective_sizes([white, smooth])
+    assert n[0] == pytest.approx(1000, rel=0.1)
+    assert n[1] < 50
+    f = [np.ones(4), 2 * np.ones(4)]
+    r = [np.ones(4), np.zeros(4)]
+    assert pooled_j(r, f) == pytest.approx(np.sqrt(4 / 20))
