@@ -5,7 +5,8 @@ Chain from the measured (actuator) displacement y_A to the measured force F::
 
     y_A --backlash (knot transform)--> --actuator lag τ_a--> y_D --series compliance 1/k_s--> y_P
     y_P = y_D - c A_P Δp,   c = 1/k_s
-    d(Δp)/dt = K (A_P v_D - x Q_O(Δp)) / (1 + K A_P^2 c),   K = B_1/(V_{0,1} - A_P y_P) + B_2/(V_{0,2} + A_P y_P)
+    d(Δp)/dt = K (A_P v_D - x Q_O(Δp)) / (1 + K A_P^2 c)
+    K        = B_1/(V_{0,1} - A_P y_P) + B_2/(V_{0,2} + A_P y_P)
     dx/dt    = (x_ss(Δp) - x) / τ_v                          (valve dynamics; x = 1 when off)
     F        = A_P Δp + F_f(v_P) + m a_P,   v_P = v_D - c A_P d(Δp)/dt
 
@@ -17,7 +18,7 @@ Effect vector
 The effect parameters travel as one float64 vector of fixed layout :data:`EFFECT_SLOTS` (this module
 is the only place that knows the order); :func:`pack_effects` / :func:`unpack_effects` convert from
 and to ``{effect: {param: value}}``. A slot at 0 switches its part off (the stiffness is stored as
-the compliance 1/k_s).
+the compliance 1/k_s), except that τ_v = 0 with p_v > 0 is the quasi-static valve x = x_ss(Δp).
 
 Method of :func:`solve_augmented`
 ---------------------------------
@@ -43,23 +44,39 @@ import numpy as np
 from numba import njit
 from scipy.integrate import solve_ivp
 
-from . import model
+from . import model as _m
 from .compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
 from .effects import EFFECTS, complete_effects
 from .effects.backlash import backlash_knots
 from .effects.friction import friction_force, friction_force_scalar
 from .effects.inertia import CORNER_TIME_S
-from .effects.valve_dynamics import steady_opening
+from .effects.valve_dynamics import MIN_OPENING, steady_opening
 from .errors import BayesDamperError, SettingsError
 from .excitation import PiecewiseLinear
+from .model import (
+    DEFAULT_ATOL,
+    DEFAULT_RTOL,
+    STATUS_BAD_INPUT,
+    STATUS_MAX_STEPS,
+    STATUS_MESSAGES,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_STEP_UNDERFLOW,
+    STATUS_VOLUME,
+)
 from .orifice import orifice_flow, orifice_flow_and_slope
-from .model import (_A21, _A31, _A32, _A41, _A42, _A43, _A51, _A52, _A53, _A54, _C2, _C3, _C4, _C21, _C31,
-                    _C32, _C41, _C42, _C43, _C51, _C52, _C53, _C54, _C61, _C62, _C63, _C64, _C65, _D1, _D2,
-                    _D3, _D4, _E21, _E22, _E23, _E24, _E25, _E31, _E32, _E33, _E34, _E35, _FAC_GROW,
-                    _FAC_SHRINK, _GAMMA, _SAFE, DEFAULT_ATOL, DEFAULT_RTOL, STATUS_BAD_INPUT,
-                    STATUS_MAX_STEPS, STATUS_MESSAGES, STATUS_NONFINITE, STATUS_OK, STATUS_STEP_UNDERFLOW,
-                    STATUS_VOLUME)
 from .params import DamperConstants, DynamicParameters, FlowCoefficients
+
+# RODAS4 coefficients and step control shared with the eq. (7) kernel (model.py).
+_GAMMA, _C2, _C3, _C4, _D1, _D2, _D3, _D4 = _m._GAMMA, _m._C2, _m._C3, _m._C4, _m._D1, _m._D2, _m._D3, _m._D4
+_A21, _A31, _A32, _A41, _A42, _A43 = _m._A21, _m._A31, _m._A32, _m._A41, _m._A42, _m._A43
+_A51, _A52, _A53, _A54 = _m._A51, _m._A52, _m._A53, _m._A54
+_C21, _C31, _C32, _C41, _C42, _C43 = _m._C21, _m._C31, _m._C32, _m._C41, _m._C42, _m._C43
+_C51, _C52, _C53, _C54, _C61, _C62, _C63, _C64, _C65 = (_m._C51, _m._C52, _m._C53, _m._C54, _m._C61, _m._C62,
+                                                        _m._C63, _m._C64, _m._C65)
+_E21, _E22, _E23, _E24, _E25 = _m._E21, _m._E22, _m._E23, _m._E24, _m._E25
+_E31, _E32, _E33, _E34, _E35 = _m._E31, _m._E32, _m._E33, _m._E34, _m._E35
+_FAC_SHRINK, _FAC_GROW, _SAFE = _m._FAC_SHRINK, _m._FAC_GROW, _m._SAFE
 
 __all__ = [
     "EFFECT_SLOTS", "MAX_STEPS", "AugmentedProblem", "backlash_knots", "pack_effects",
@@ -75,6 +92,7 @@ EFFECT_SLOTS = ("coulomb", "viscous", "stribeck", "stribeck_v", "gap", "lag_tau"
  _MASS) = range(len(EFFECT_SLOTS))
 #: Maximum number of accepted steps of one :func:`solve_augmented` call (whole records included).
 MAX_STEPS = 100_000
+_MESSAGES = {**STATUS_MESSAGES, STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed"}
 
 _SLOT_PARAM = {p.slot: (e.name, p) for e in EFFECTS.values() for p in e.params}
 if set(_SLOT_PARAM) != set(EFFECT_SLOTS) or len(_SLOT_PARAM) != len(EFFECT_SLOTS):  # pragma: no cover
@@ -300,7 +318,8 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
     force : ndarray, shape (n_t,)
         Measured force F [N] at ``t_out``; finite when status is 0, unspecified otherwise.
     status : int
-        0 on success; see :data:`bayesdamper.model.STATUS_MESSAGES`.
+        0 on success; the codes of :data:`bayesdamper.model.STATUS_MESSAGES` (3: more than
+        :data:`MAX_STEPS` steps).
     """
     n_t = t_out.shape[0]
     out = np.full(n_t, np.nan)
@@ -591,7 +610,7 @@ def simulate_augmented(
     if status != STATUS_OK:
         raise BayesDamperError(f"augmented solve failed (alpha_V={dynamic.liquid_gas_ratio!r}, "
                                f"p_R={dynamic.reference_pressure!r} Pa, effects={unpack_effects(eff)}): "
-                               f"{STATUS_MESSAGES[int(status)]}")
+                               f"{_MESSAGES[int(status)]}")
     return force
 
 
@@ -685,8 +704,9 @@ class AugmentedProblem:
     def initial_dp(self, eff: np.ndarray, v_prev: float) -> float:
         """Δp at the step [Pa]: ``(F_step - F_f(v_prev)) / A_P`` (the step force includes friction)."""
         f = self.step_force
-        if eff[_COULOMB] > 0.0 or eff[_VISCOUS] > 0.0 or eff[_STRIBECK] > 0.0:
-            f -= friction_force_scalar(v_prev, eff[_COULOMB], eff[_VISCOUS], eff[_STRIBECK], eff[_STRIBECK_V])
+        if eff[_COULOMB] > 0.0 or eff[_VISCOUS] > 0.0 or eff[_STRIBECK] > 0.0:  # plain Python: no dispatch
+            f -= friction_force_scalar.py_func(v_prev, float(eff[_COULOMB]), float(eff[_VISCOUS]),
+                                               float(eff[_STRIBECK]), float(eff[_STRIBECK_V]))
         return f / self.damper.piston_area
 
     def simulate_force(self, alpha_v: float, p_r: float, eff: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -699,10 +719,11 @@ class AugmentedProblem:
         eff : ndarray, shape (len(EFFECT_SLOTS),)
             Effect vector (:func:`pack_effects`).
         """
-        eff = np.ascontiguousarray(eff, dtype=np.float64)
-        if eff.shape != (len(EFFECT_SLOTS),) or not np.all(np.isfinite(eff)) or np.any(eff < 0):
+        eff = np.asarray(eff, dtype=np.float64)
+        gap = float(eff[_GAP]) if eff.shape == (len(EFFECT_SLOTS),) else math.nan
+        if not 0.0 <= gap < math.inf:  # the kernel checks the other slots
             return np.full(self.time.shape, np.nan), False
-        kt, ky, v_prev = self.knots(float(eff[_GAP]))
+        kt, ky, v_prev = self.knots(gap)
         d = self.damper
         force, status = solve_augmented(self.time, kt, ky, self.t_step, self.initial_dp(eff, v_prev), v_prev,
                                         d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
@@ -760,7 +781,8 @@ def simulate_two_state_augmented(
     area, v01, v02 = damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2
     b0, alpha_v, p_r = damper.liquid_bulk_modulus, dynamic.liquid_gas_ratio, dynamic.reference_pressure
     cl12, cq12, cl21, cq21 = flow.as_array().tolist()
-    comp, tau_a, tau_v, p_v, mass = (float(eff[i]) for i in (_COMPLIANCE, _LAG_TAU, _VALVE_TAU, _VALVE_P, _MASS))
+    comp, tau_a, tau_v, p_v, mass = (float(eff[i])
+                                     for i in (_COMPLIANCE, _LAG_TAU, _VALVE_TAU, _VALVE_P, _MASS))
     vmode = 0 if p_v == 0.0 else (2 if tau_v > 0.0 else 1)
     fric = {p.name: float(eff[EFFECT_SLOTS.index(p.slot)]) for p in EFFECTS["friction"].params}
 
@@ -768,7 +790,7 @@ def simulate_two_state_augmented(
         return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
 
     def x_ss(dp):
-        return max(1.0 - math.exp(-abs(dp) / p_v), steady_opening(0.0, 1.0)[0])
+        return max(1.0 - math.exp(-abs(dp) / p_v), MIN_OPENING)
 
     def parts(t, z, ta, ya, va):
         p1, p2, xv, e, vf = z
@@ -811,8 +833,8 @@ def simulate_two_state_augmented(
             break
         sel = np.flatnonzero((t_out > ta) & (t_out <= tb))
         t_eval = np.append(t_out[sel], tb) if sel.size == 0 or t_out[sel[-1]] < tb else t_out[sel]
-        sol = solve_ivp(lambda t, zz: parts(t, zz, ta, ya, va)[0], (ta, tb), z, method="Radau",
-                        t_eval=t_eval, rtol=rtol, atol=atols)
+        sol = solve_ivp(lambda t, zz, ta, ya, va: parts(t, zz, ta, ya, va)[0], (ta, tb), z, method="Radau",
+                        t_eval=t_eval, args=(ta, ya, va), rtol=rtol, atol=atols)
         if sol.status != 0:
             raise BayesDamperError(f"two-state augmented solve failed: {sol.message}")
         for j, i in enumerate(sel):

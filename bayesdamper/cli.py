@@ -52,20 +52,29 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--sample-rate", type=_positive_float, default=250.0, help="[Hz]")
     s.add_argument("--model", choices=["eq7", "two-state"], default="eq7")
     s.add_argument("--force", action="store_true", help="overwrite an existing data set in OUT_DIR")
+    s.add_argument("--effect", action="append", default=None, metavar="NAME[:param=value,...]",
+                   help="inject an effect (repeatable), e.g. friction:coulomb_N=150; unspecified "
+                        "parameters take their defaults")
 
-    i = sub.add_parser("identify", help="stage 1 + Bayesian stage 2 for every transient")
-    i.add_argument("data_dir")
-    i.add_argument("--out", required=True)
-    i.add_argument("--seed", type=int, default=0)
-    i.add_argument("--credible-mass", type=_mass, default=0.9)
-    i.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
-    i.add_argument("--workers", type=int, default=0, help="worker processes (0: all cores)")
-    i.add_argument("--noise-model", default="ar1", help="ar1 (default) or white")
-    i.add_argument("--alpha-v-prior", type=_floats, default=None, help="LOW,HIGH bounds of α_V [-]")
-    i.add_argument("--p-r-prior", type=_floats, default=None, help="LOW,HIGH bounds of p_R [Pa]")
-    i.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
-    i.add_argument("--only", default=None, help="comma-separated segment ids to run (default: all)")
-    i.add_argument("--no-figures", action="store_true")
+    for name, text in (("identify", "stage 1 + Bayesian stage 2 for every transient (resumable)"),
+                       ("report", "identify, then diagnose (if available), then OUT/report.html")):
+        i = sub.add_parser(name, help=text)
+        i.add_argument("data_dir", nargs="+", help="data-set folder(s); several go to OUT/<data-set name>/")
+        i.add_argument("--out", required=True)
+        i.add_argument("--seed", type=int, default=0)
+        i.add_argument("--credible-mass", type=_mass, default=0.9)
+        i.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
+        i.add_argument("--workers", type=int, default=0, help="worker processes (0: all cores)")
+        i.add_argument("--scheduler", default=None,
+                       help="Dask scheduler address (tcp://host:8786): run the transients on that cluster")
+        i.add_argument("--noise-model", default="ar1", help="ar1 (default) or white")
+        i.add_argument("--alpha-v-prior", type=_floats, default=None, help="LOW,HIGH bounds of α_V [-]")
+        i.add_argument("--p-r-prior", type=_floats, default=None, help="LOW,HIGH bounds of p_R [Pa]")
+        i.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
+        i.add_argument("--only", default=None, help="comma-separated segment ids to run (default: all)")
+        i.add_argument("--no-figures", action="store_true")
+        i.add_argument("--force", action="store_true",
+                       help="clear results of different settings in OUT instead of refusing")
 
     g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit")
     g.add_argument("data_dir")
@@ -90,11 +99,13 @@ def main(argv: list[str] | None = None) -> int:
 
             run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit)
         elif args.command == "simulate":
+            from .effects import parse_effect_specs
             from .synthetic import run_simulate
 
             run_simulate(args.out_dir, velocities_mm_s=args.velocities, alpha_v=args.alpha_v, p_r=args.p_r,
                          noise_n=args.noise_n, noise_phi=args.noise_phi, seed=args.seed,
-                         sample_rate=args.sample_rate, model=args.model, overwrite=args.force)
+                         sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
+                         effects=parse_effect_specs(args.effect))
         elif args.command == "diagnose":
             from .diagnosis import run_diagnosis
 
@@ -102,13 +113,15 @@ def main(argv: list[str] | None = None) -> int:
                           effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
                           workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
                           max_steps=args.max_steps, figures=not args.no_figures)
-        elif args.command == "identify":
-            from .workflows import run_identify
+        elif args.command in ("identify", "report"):
+            from .workflows import run_identify, run_report
 
-            run_identify(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
-                         tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
-                         alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
-                         max_steps=args.max_steps, only=args.only, figures=not args.no_figures)
+            run = run_identify if args.command == "identify" else run_report
+            run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
+                tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
+                alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
+                max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
+                force=args.force, scheduler=args.scheduler)
     except BayesDamperError as err:
         print(f"bayesdamper: error: {err}", file=sys.stderr)
         return 2

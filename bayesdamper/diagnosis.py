@@ -31,6 +31,7 @@ Which effect?  (stated criterion)
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -41,6 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 from scipy.optimize import minimize, minimize_scalar
+
+from .errors import BayesDamperError
 
 #: Window of the moving-average low-pass used by the structure test [s] (keeps < ~5 Hz content).
 SMOOTH_S = 0.1
@@ -54,6 +57,8 @@ MAX_RHO = 0.995
 GRID_POINTS = 6
 #: Rounds of the select-and-refit loop.
 MAX_ROUNDS = 3
+#: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
+INFEASIBLE = 1e12
 
 
 # --------------------------------------------------------------------------------------------------
@@ -172,7 +177,7 @@ def _inner_fit(args):
     k, eff, flow, warm = args
     prob = _PROBLEMS[k]
     if flow is not None:
-        prob = prob.with_flow(flow)
+        prob = dataclasses.replace(prob, flow=flow)
     f_meas = prob.force
 
     def sse(x):
@@ -297,7 +302,12 @@ def fit_candidate(engine: ProfileEngine, name: str, fixed: dict, current_sse: np
         key = tuple(np.round(z, 6))
         if key not in cache:
             e = effects_at(z)
-            sse, _, _ = engine.evaluate(pack(e), flow_for(e))
+            try:
+                flow = flow_for(e)
+            except BayesDamperError:  # e.g. friction larger than the plateau forces allow
+                cache[key] = INFEASIBLE
+                return cache[key]
+            sse, _, _ = engine.evaluate(pack(e), flow)
             cache[key] = float(np.sum(n_eff * np.log(np.maximum(sse, 1e-300) / current_sse)))
         return cache[key]
 
@@ -406,8 +416,12 @@ def _residuals_at_medians(results, problems) -> list[np.ndarray]:
 
 def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
                   workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
-                  max_steps: int | None = None, figures: bool = True, quiet: bool = False) -> dict:
-    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model."""
+                  max_steps: int | None = None, figures: bool = True, quiet: bool = False,
+                  tests: list[str] | None = None) -> dict:
+    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model.
+
+    ``tests`` restricts the run to the named records (file stems) of the data set.
+    """
     from .augmented import AugmentedProblem, pack_effects
     from .effects import EFFECTS
     from .errors import SettingsError
@@ -423,6 +437,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
     ds, segs, transients, static = prepare(data_dir, tmax)
+    if tests:
+        missing = set(tests) - {s.record.name for s in segs}
+        if missing:
+            raise SettingsError(f"--tests: no record(s) named {', '.join(sorted(missing))} in {ds.path}")
+        segs = tuple(s for s in segs if s.record.name in tests)
+        transients = [t for t in transients if t.test in tests]
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -449,7 +469,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
 
     # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient
     rec = {s.record.name: s for s in segs}
-    aug = [AugmentedProblem.from_transient(tr, rec[tr.test], ds.damper, static.coefficients) for tr in transients]
+    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
     engine = ProfileEngine(aug, warm, workers)
     plateaus = [p for s in segs for p in s.plateaus]
@@ -497,7 +517,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         progress(f"diagnose: calibrating the final model with {', '.join(selected)}")
         flow_final = flow_for(fixed) or static.coefficients
         eff = pack_effects(fixed)
-        final_problems = [FixedEffectsProblem(a.with_flow(flow_final), eff) for a in aug]
+        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final), eff) for a in aug]
         final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
                                progress)
         final_resid = _residuals_at_medians(final, final_problems)

@@ -228,10 +228,11 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
                       "settings": settings.as_dict(), "static_flow": asdict(flow),
                       "summary": {k: entry[k] for k in ("alpha_V", "p_R_Pa", "J", "rhat_max",
                                                           "ess_bulk_min", "converged", "tau")},
-                      "thin": thin, "chains_are": "walkers, ensemble-major "
+                      "entry": entry, "thin": thin, "chains_are": "walkers, ensemble-major "
                       f"({settings.sampler.n_ensembles} ensembles x {settings.sampler.n_walkers} walkers)"})
         idata = post.to_inference_data(phys_ch, space.names, lp, {"force_N": problem.force},
-                                       {"time_s": problem.time, "dp0_Pa": np.array([problem.dp0])}, attrs)
+                                       {"time_s": problem.time, "dp0_Pa": np.array([problem.dp0]),
+                                        "band_N": band, "ls_force_N": ls_force}, attrs)
         post.write_netcdf(idata, out_nc)
     return TransientResult(entry, space.names, phys_ch, np.array(problem.time), np.array(problem.force),
                            band, ls_force)

@@ -99,3 +99,27 @@ def provenance(idata: az.InferenceData) -> dict:
         except (TypeError, ValueError):
             out[k] = v
     return out
+
+
+def read_transient(path: Path) -> dict:
+    """Everything a stored transient holds, as plain arrays (for resuming a run without re-sampling).
+
+    Returns
+    -------
+    dict
+        ``names`` (tuple of str, the posterior variables in stored order), ``chains`` (ndarray,
+        shape (n_chains, n_draws, ndim), physical units), ``time`` [s], ``force`` [N] (measured),
+        ``band`` (ndarray, shape (3, n_times), predictive quantiles [N]) and ``ls_force`` [N] when the
+        file has them (else None), and ``attrs`` (the provenance, JSON values decoded).
+    """
+    idata = read_netcdf(path)
+    names = tuple(str(n) for n in idata.posterior.data_vars)
+    chains = np.stack([np.asarray(idata.posterior[n].values, dtype=float) for n in names], axis=-1)
+    const = idata.constant_data
+
+    def _opt(name: str):
+        return np.asarray(const[name].values, dtype=float) if name in const else None
+
+    return {"names": names, "chains": chains, "time": np.asarray(const["time_s"].values, dtype=float),
+            "force": np.asarray(idata.observed_data["force_N"].values, dtype=float),
+            "band": _opt("band_N"), "ls_force": _opt("ls_force_N"), "attrs": provenance(idata)}

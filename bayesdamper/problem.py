@@ -60,6 +60,14 @@ class TransientProblem:
             arr.flags.writeable = False
             object.__setattr__(self, name, arr)
         object.__setattr__(self, "flow_array", self.flow.as_array())
+        kt = self.knot_times
+        slack = 1e-9 * max(1.0, abs(float(kt[-1])))
+        if self.time[-1] > kt[-1] and self.time[-1] - kt[-1] <= slack:
+            # a sample at the window end that rounding put a hair past the last knot: extend the knot
+            kt = kt.copy()
+            kt[-1] = self.time[-1]
+            kt.flags.writeable = False
+            object.__setattr__(self, "knot_times", kt)
         if not (self.knot_times[0] <= self.time[0] and self.time[-1] <= self.knot_times[-1]):
             raise ValueError(f"{self.segment_id}: knots must cover the sample times")
 

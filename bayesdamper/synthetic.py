@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .effects import complete_effects
 from .errors import SettingsError
 from .excitation import PiecewiseLinear
 from .model import simulate_single_state, simulate_two_state
@@ -48,20 +49,27 @@ def coloured_noise(n: int, sd: float, phi: float, rng: np.random.Generator) -> n
 
 def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: DamperConstants = RIG_A_DAMPER,
                     flow: FlowCoefficients = PAPER_FLOW, sample_rate: float = 250.0, noise_n: float = 0.0,
-                    noise_phi: float = 0.0, model: str = "eq7",
-                    rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One test: sample times [s], measured displacement [m], measured force [N]."""
+                    noise_phi: float = 0.0, model: str = "eq7", rng: np.random.Generator | None = None,
+                    effects: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One test: sample times [s], measured displacement [m], measured force [N].
+
+    ``effects`` (``{effect: {param: value}}``, :mod:`bayesdamper.effects`) injects effects into the
+    chosen base model (:func:`simulate_with_effects`); the displacement is the measured (actuator) one.
+    """
     rng = rng or np.random.default_rng(0)
     exc = PiecewiseLinear.triangle(AMPLITUDE_M, velocity, rest=REST_S, cycles=CYCLES)
     t = np.arange(0.0, exc.knot_times[-1] + 0.5 / sample_rate, 1.0 / sample_rate)
     t = t[t <= exc.knot_times[-1] + 1e-12]
-    if model == "eq7":
+    if effects:
+        force = simulate_with_effects(t, exc, dynamic, effects, damper=damper, flow=flow, model=model)
+    elif model == "eq7":
         dp = simulate_single_state(t, exc, damper, flow, dynamic, dp0=0.0, t0=0.0)
     elif model == "two-state":
         dp = simulate_two_state(t, exc, damper, flow, dynamic, dp0=0.0, t0=0.0).dp
     else:
         raise SettingsError(f"--model: unknown model {model!r}, choose eq7 or two-state")
-    force = damper.piston_area * dp
+    if not effects:
+        force = damper.piston_area * dp
     y = exc.displacement(t)
     if noise_n > 0:
         force = force + coloured_noise(t.size, noise_n, noise_phi, rng)
@@ -72,8 +80,12 @@ def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: Damp
 def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParameters, *,
                   damper: DamperConstants = RIG_A_DAMPER, flow: FlowCoefficients = PAPER_FLOW,
                   sample_rate: float = 250.0, noise_n: float = 0.0, noise_phi: float = 0.0,
-                  seed: int = 0, model: str = "eq7", overwrite: bool = False) -> Path:
+                  seed: int = 0, model: str = "eq7", overwrite: bool = False,
+                  effects: dict | None = None) -> Path:
     """Write ``damper.toml``, one CSV per velocity [m/s] and ``truth.json`` into ``out_dir``.
+
+    ``effects`` (``{effect: {param: value}}``) are injected into the base model and recorded, with
+    every parameter filled in, under ``"effects"`` in ``truth.json`` (``{}`` when none).
 
     The folder is assembled in a temporary sibling and renamed into place, so a failure leaves any
     existing ``out_dir`` untouched.
@@ -86,6 +98,7 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
         raise SettingsError(f"{out_dir}: folder exists and is not empty (use --force to overwrite)")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
+    effects = complete_effects(effects)
     rng = np.random.default_rng(seed)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
     try:
@@ -98,7 +111,8 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
             f"liquid_bulk_modulus_Pa = {damper.liquid_bulk_modulus!r}\n")
         for v in velocities:
             t, y, f = simulate_record(v, dynamic, damper=damper, flow=flow, sample_rate=sample_rate,
-                                      noise_n=noise_n, noise_phi=noise_phi, model=model, rng=rng)
+                                      noise_n=noise_n, noise_phi=noise_phi, model=model, rng=rng,
+                                      effects=effects)
             with open(tmp / f"{test_name(v)}.csv", "w") as fh:
                 fh.write("time_s,displacement_m,force_N\n")
                 np.savetxt(fh, np.column_stack([t, y, f]), fmt=["%.6f", "%.9e", "%.4f"], delimiter=",")
@@ -107,7 +121,8 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
                  "noise_N": noise_n, "noise_phi": noise_phi, "displacement_noise_m": DISPLACEMENT_NOISE_M,
                  "protocol": {"rest_s": REST_S, "amplitude_m": AMPLITUDE_M, "cycles": CYCLES},
                  "damper": asdict(damper), "flow": asdict(flow),
-                 "alpha_V": dynamic.liquid_gas_ratio, "p_R_Pa": dynamic.reference_pressure}
+                 "alpha_V": dynamic.liquid_gas_ratio, "p_R_Pa": dynamic.reference_pressure,
+                 "effects": effects}
         (tmp / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
         if out_dir.exists():
             shutil.rmtree(out_dir)
@@ -120,9 +135,27 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
 
 def run_simulate(out_dir: str, *, velocities_mm_s: list[float], alpha_v: float, p_r: float,
                  noise_n: float, noise_phi: float, seed: int, sample_rate: float, model: str,
-                 overwrite: bool = False) -> None:
-    """CLI entry of ``bayesdamper simulate`` (speeds in mm/s)."""
+                 overwrite: bool = False, effects: dict | None = None) -> None:
+    """CLI entry of ``bayesdamper simulate`` (speeds in mm/s; ``effects`` as for :func:`write_dataset`)."""
     dyn = DynamicParameters(alpha_v, p_r)
     path = write_dataset(Path(out_dir), [v * 1e-3 for v in velocities_mm_s], dyn, sample_rate=sample_rate,
-                         noise_n=noise_n, noise_phi=noise_phi, seed=seed, model=model, overwrite=overwrite)
+                         noise_n=noise_n, noise_phi=noise_phi, seed=seed, model=model, overwrite=overwrite,
+                         effects=effects)
     print(f"wrote {len(velocities_mm_s)} test(s) to {path}")
+
+
+def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: DynamicParameters,
+                          effects: dict, *, damper: DamperConstants = RIG_A_DAMPER,
+                          flow: FlowCoefficients = PAPER_FLOW, model: str = "eq7") -> np.ndarray:
+    """Measured force [N] at ``t`` [s] of the whole record with effects injected into the base model.
+
+    ``model="eq7"``: :func:`bayesdamper.augmented.simulate_augmented`; ``"two-state"``:
+    :func:`bayesdamper.augmented.simulate_two_state_augmented` (scipy Radau, slower). From rest at t = 0.
+    """
+    from .augmented import simulate_augmented, simulate_two_state_augmented
+
+    if model == "eq7":
+        return simulate_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
+    if model == "two-state":
+        return simulate_two_state_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
+    raise SettingsError(f"--model: unknown model {model!r}, choose eq7 or two-state")

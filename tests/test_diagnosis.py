@@ -60,3 +60,43 @@ def test_effective_size_and_pooled_j():
     f = [np.ones(4), 2 * np.ones(4)]
     r = [np.ones(4), np.zeros(4)]
     assert pooled_j(r, f) == pytest.approx(np.sqrt(4 / 20))
+
+
+# ----------------------------------------------------------------------------------------------------
+# the closed loop on data with an undeclared effect (slow; run in CI)
+
+EFFECT_CASES = ["none", "friction", "backlash", "actuator_lag", "valve_dynamics", "series_compliance", "inertia"]
+#: Force noise of the synthetic tests [N] (rig-A's plateau noise is ~12 N).
+LOOP_NOISE_N = 15.0
+
+
+def _loop_case(effect: str, tmp_path):
+    from bayesdamper.diagnosis import run_diagnosis
+    from bayesdamper.params import DynamicParameters
+    from bayesdamper.synthetic import write_dataset
+
+    data = tmp_path / f"data_{effect}"
+    effects = None if effect == "none" else {effect: {}}
+    write_dataset(data, [0.5e-3, 1.0e-3, 1.5e-3], DynamicParameters(1 / 0.03, 3.0e5), model="two-state",
+                  noise_n=LOOP_NOISE_N, seed=7, effects=effects)
+    return run_diagnosis(str(data), str(tmp_path / f"out_{effect}"), seed=1, workers=2, max_steps=600,
+                         figures=False, quiet=True)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect", EFFECT_CASES)
+def test_loop_finds_the_undeclared_effect(effect, tmp_path):
+    """Two-state truth + one injected effect, undeclared: diagnose selects it first and J falls;
+    the control (no injected effect) selects nothing."""
+    d = _loop_case(effect, tmp_path)
+    first = d["selected"][0] if d["selected"] else "none"
+    row = {"injected": effect, "selected": d["selected"], "J_before": d["baseline"]["J_pooled"],
+           "J_after": d["final"]["J_pooled"], "scores": {c["effect"]: round(c["score"], 1) for c in d["candidates"]}}
+    print("CONFUSION", json.dumps(row))
+    assert first == effect, row
+    if effect != "none":
+        assert d["final"]["J_pooled"] < d["baseline"]["J_pooled"], row
+    assert d["candidates"] and all(c["criterion"] == "delta_BIC_eff" for c in d["candidates"])
+    assert set(d) >= {"dataset", "noise_N", "baseline", "candidates", "selected", "final", "drift_before",
+                      "drift_after"}
+    assert SELECT_DELTA_BIC < 0

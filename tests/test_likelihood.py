@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import integrate, linalg, stats
 
+from bayesdamper.errors import SettingsError
 from bayesdamper.excitation import PiecewiseLinear
 from bayesdamper.likelihood import (
     AR1Noise,
@@ -15,7 +16,6 @@ from bayesdamper.likelihood import (
     cost_j,
     make_noise_model,
 )
-from bayesdamper.errors import SettingsError
 from bayesdamper.model import simulate_single_state
 from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.problem import TransientProblem

@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
+from bayesdamper.data import TestRecord
 from bayesdamper.identify import StageTwoSettings, identify_transient, shape_report
 from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.priors import ParameterSpace
 from bayesdamper.sampling import SamplerSettings, sample_posterior
 from bayesdamper.segmentation import segment_record
-from bayesdamper.data import TestRecord
 from bayesdamper.synthetic import simulate_record
 
 TRUTH = DynamicParameters(1 / 0.03, 3.0e5)

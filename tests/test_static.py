@@ -25,7 +25,8 @@ def _plateaus(rng, noise=NOISE_PA):
                               (-1, PAPER_FLOW.laminar_21, PAPER_FLOW.quadratic_21)):
         q = AREA * SPEEDS
         dp = cl * q + cq * q * q + noise * rng.standard_normal(q.size)
-        out += [SimpleNamespace(direction=direction, flow_rate=qi, pressure_drop=di) for qi, di in zip(q, dp)]
+        out += [SimpleNamespace(direction=direction, flow_rate=qi, pressure_drop=di)
+                for qi, di in zip(q, dp, strict=True)]
     return out
 
 
@@ -49,7 +50,7 @@ def test_standard_errors_are_honest():
     hits = np.zeros(4)
     for _ in range(N_REPLICATES):
         iv = fit_static(_plateaus(rng)).intervals(0.9)
-        hits += [iv[k]["lo"] <= t <= iv[k]["hi"] for k, t in zip(("CL12", "CQ12", "CL21", "CQ21"), truth)]
+        hits += [iv[k]["lo"] <= t <= iv[k]["hi"] for k, t in zip(("CL12", "CQ12", "CL21", "CQ21"), truth, strict=True)]
     cov = hits / N_REPLICATES
     assert np.all(cov > COVERAGE_BAND[0]) and np.all(cov < COVERAGE_BAND[1]), cov
 

@@ -14,6 +14,7 @@ transform of the knots (:func:`backlash_knots`), never as an ODE state.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from ..errors import SettingsError
 from .base import Effect, EffectParam
@@ -33,6 +34,33 @@ EFFECT = Effect(
                     "total free play between the measured actuator displacement and the piston", slot="gap"),
     ),
 )
+
+
+@njit(cache=True)
+def _play_knots(kt, ky, r, yp):
+    """Knots of the play operator of half-width ``r`` [m] from piston position ``yp`` [m] (compiled core)."""
+    n = kt.shape[0]
+    times = np.empty(2 * n - 1)
+    ys = np.empty(2 * n - 1)
+    times[0] = kt[0]
+    ys[0] = yp
+    m = 1
+    for k in range(n - 1):
+        ta, tb, ya, yb = kt[k], kt[k + 1], ky[k], ky[k + 1]
+        s = (yb - ya) / (tb - ta)
+        if s != 0.0:
+            side = -r if s > 0.0 else r  # the contact: y_P = y_A + side while the actuator drags
+            te = ta + (yp - side - ya) / s  # the actuator reaches the contact
+            if te < tb - MERGE_TIME_S:
+                if te > ta + MERGE_TIME_S:
+                    times[m] = te
+                    ys[m] = yp
+                    m += 1
+                yp = yb + side
+        times[m] = tb
+        ys[m] = yp
+        m += 1
+    return times[:m].copy(), ys[:m].copy()
 
 
 def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
@@ -55,33 +83,13 @@ def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
         Knots of the piston displacement, ``n_knots <= n_out <= 2 n_knots - 1``: every input knot
         plus at most one engagement knot per segment.
     """
-    kt = np.asarray(knot_t, dtype=float)
-    ky = np.asarray(knot_y, dtype=float)
+    kt = np.ascontiguousarray(knot_t, dtype=np.float64)
+    ky = np.ascontiguousarray(knot_y, dtype=np.float64)
     if not (np.isfinite(gap) and gap >= 0):
         raise SettingsError(f"backlash gap must be finite and >= 0 m, got {gap!r}")
     if gap == 0:
         return kt.copy(), ky.copy()
     r = 0.5 * float(gap)
-    yp = float(ky[0]) if y_piston0 is None else float(y_piston0)
-    yp = min(max(yp, float(ky[0]) - r), float(ky[0]) + r)
-    times, ys = [float(kt[0])], [yp]
-    for k in range(kt.size - 1):
-        ta, tb, ya, yb = float(kt[k]), float(kt[k + 1]), float(ky[k]), float(ky[k + 1])
-        s = (yb - ya) / (tb - ta)
-        if s == 0.0:
-            times.append(tb)
-            ys.append(yp)
-            continue
-        side = -r if s > 0 else r  # the contact: y_P = y_A + side while the actuator drags
-        te = ta + (yp - side - ya) / s  # the actuator reaches the contact
-        if te >= tb - MERGE_TIME_S:  # stays inside the play over the whole segment
-            times.append(tb)
-            ys.append(yp)
-            continue
-        if te > ta + MERGE_TIME_S:
-            times.append(te)
-            ys.append(yp)
-        yp = yb + side
-        times.append(tb)
-        ys.append(yp)
-    return np.asarray(times), np.asarray(ys)
+    y0 = float(ky[0])
+    yp = y0 if y_piston0 is None else min(max(float(y_piston0), y0 - r), y0 + r)
+    return _play_knots(kt, ky, r, yp)

@@ -22,7 +22,7 @@ EFFECT = Effect(
     name="series_compliance",
     description="the damper is mounted through a finite stiffness in series, which slows the force rise",
     params=(
-        EffectParam("stiffness_N_per_m", "N/m", 1.0e6, 1.0e10, 3.0e7, True,
+        EffectParam("stiffness_N_per_m", "N/m", 1.0e6, 1.0e10, 1.0e8, True,
                     "stiffness k_s of the mount and rod in series with the damper", off=math.inf,
                     slot="compliance", reciprocal=True),
     ),

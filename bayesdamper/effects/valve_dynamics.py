@@ -30,9 +30,9 @@ EFFECT = Effect(
     description="the check valves open and close with a delay, so the flow lags the pressure "
                 "difference (overshoot, pressure pulses)",
     params=(
-        EffectParam("time_constant_s", "s", 1.0e-4, 1.0, 0.01, True,
+        EffectParam("time_constant_s", "s", 1.0e-4, 3.0, 0.1, True,
                     "time constant τ_v of the valve opening", slot="valve_tau"),
-        EffectParam("opening_pressure_Pa", "Pa", 1.0e3, 1.0e6, 1.0e5, True,
+        EffectParam("opening_pressure_Pa", "Pa", 1.0e3, 1.0e6, 5.0e4, True,
                     "pressure-difference scale p_v over which the valves open", slot="valve_p"),
     ),
 )
