@@ -23,7 +23,8 @@ def main(argv: list[str] | None = None) -> None:
     max_steps, only = sampling_choice(args)
     t0 = time.perf_counter()
     summary = workflows.run_identify(str(args.data), str(args.out / "identify"), seed=args.seed,
-                                     workers=args.workers, max_steps=max_steps, only=only, figures=False)
+                                     workers=args.workers, max_steps=max_steps, only=only, figures=False,
+                                     force=True)  # the identify folder is this script's scratch space
     fig = plots.figure9_drift(summary["segments"], summary["drift"] or None, summary["credible_mass"],
                               title=f"data set {summary['dataset']!r}")
     paths = save_figure(fig, args.out / "figure9_drift")

@@ -66,8 +66,10 @@ def to_inference_data(physical: np.ndarray, names: tuple[str, ...], log_prob: np
     """
     posterior = {n: physical[:, :, i] for i, n in enumerate(names)}
     flat_attrs = {k: v if isinstance(v, str) else json.dumps(v) for k, v in attrs.items()}
-    idata = az.from_dict(posterior=posterior, sample_stats={"lp": log_prob}, observed_data=observed,
-                         constant_data=constant)
+    with warnings.catch_warnings():  # chains are walkers: a short run has more of them than draws
+        warnings.filterwarnings("ignore", message="More chains", category=UserWarning)
+        idata = az.from_dict(posterior=posterior, sample_stats={"lp": log_prob}, observed_data=observed,
+                             constant_data=constant)
     for group in idata.groups():
         idata[group].attrs.update(flat_attrs)
     return idata

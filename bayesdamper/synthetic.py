@@ -26,6 +26,8 @@ from .params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters
 REST_S = 1.0
 AMPLITUDE_M = 5.0e-3
 CYCLES = 1.25
+#: Accumulator check-valve conductance of the two-state reference [m^3 s^-1 Pa^-1] (0: pure eq. (1)).
+TWO_STATE_ACCUMULATOR = 1e-8
 #: Standard deviation of the simulated displacement measurement noise [m] (rig-A shows ~1 µm).
 DISPLACEMENT_NOISE_M = 1.0e-6
 
@@ -50,7 +52,8 @@ def coloured_noise(n: int, sd: float, phi: float, rng: np.random.Generator) -> n
 def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: DamperConstants = RIG_A_DAMPER,
                     flow: FlowCoefficients = PAPER_FLOW, sample_rate: float = 250.0, noise_n: float = 0.0,
                     noise_phi: float = 0.0, model: str = "eq7", rng: np.random.Generator | None = None,
-                    effects: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    effects: dict | None = None,
+                    accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One test: sample times [s], measured displacement [m], measured force [N].
 
     ``effects`` (``{effect: {param: value}}``, :mod:`bayesdamper.effects`) injects effects into the
@@ -61,11 +64,13 @@ def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: Damp
     t = np.arange(0.0, exc.knot_times[-1] + 0.5 / sample_rate, 1.0 / sample_rate)
     t = t[t <= exc.knot_times[-1] + 1e-12]
     if effects:
-        force = simulate_with_effects(t, exc, dynamic, effects, damper=damper, flow=flow, model=model)
+        force = simulate_with_effects(t, exc, dynamic, effects, damper=damper, flow=flow, model=model,
+                                      accumulator_conductance=accumulator_conductance)
     elif model == "eq7":
         dp = simulate_single_state(t, exc, damper, flow, dynamic, dp0=0.0, t0=0.0)
     elif model == "two-state":
-        dp = simulate_two_state(t, exc, damper, flow, dynamic, dp0=0.0, t0=0.0).dp
+        dp = simulate_two_state(t, exc, damper, flow, dynamic, dp0=0.0, t0=0.0,
+                                accumulator_conductance=accumulator_conductance).dp
     else:
         raise SettingsError(f"--model: unknown model {model!r}, choose eq7 or two-state")
     if not effects:
@@ -81,7 +86,7 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
                   damper: DamperConstants = RIG_A_DAMPER, flow: FlowCoefficients = PAPER_FLOW,
                   sample_rate: float = 250.0, noise_n: float = 0.0, noise_phi: float = 0.0,
                   seed: int = 0, model: str = "eq7", overwrite: bool = False,
-                  effects: dict | None = None) -> Path:
+                  effects: dict | None = None, accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> Path:
     """Write ``damper.toml``, one CSV per velocity [m/s] and ``truth.json`` into ``out_dir``.
 
     ``effects`` (``{effect: {param: value}}``) are injected into the base model and recorded, with
@@ -112,7 +117,7 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
         for v in velocities:
             t, y, f = simulate_record(v, dynamic, damper=damper, flow=flow, sample_rate=sample_rate,
                                       noise_n=noise_n, noise_phi=noise_phi, model=model, rng=rng,
-                                      effects=effects)
+                                      effects=effects, accumulator_conductance=accumulator_conductance)
             with open(tmp / f"{test_name(v)}.csv", "w") as fh:
                 fh.write("time_s,displacement_m,force_N\n")
                 np.savetxt(fh, np.column_stack([t, y, f]), fmt=["%.6f", "%.9e", "%.4f"], delimiter=",")
@@ -122,7 +127,7 @@ def write_dataset(out_dir: Path, velocities: list[float], dynamic: DynamicParame
                  "protocol": {"rest_s": REST_S, "amplitude_m": AMPLITUDE_M, "cycles": CYCLES},
                  "damper": asdict(damper), "flow": asdict(flow),
                  "alpha_V": dynamic.liquid_gas_ratio, "p_R_Pa": dynamic.reference_pressure,
-                 "effects": effects}
+                 "effects": effects, "accumulator_conductance": accumulator_conductance}
         (tmp / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
         if out_dir.exists():
             shutil.rmtree(out_dir)
@@ -146,7 +151,8 @@ def run_simulate(out_dir: str, *, velocities_mm_s: list[float], alpha_v: float, 
 
 def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: DynamicParameters,
                           effects: dict, *, damper: DamperConstants = RIG_A_DAMPER,
-                          flow: FlowCoefficients = PAPER_FLOW, model: str = "eq7") -> np.ndarray:
+                          flow: FlowCoefficients = PAPER_FLOW, model: str = "eq7",
+                          accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> np.ndarray:
     """Measured force [N] at ``t`` [s] of the whole record with effects injected into the base model.
 
     ``model="eq7"``: :func:`bayesdamper.augmented.simulate_augmented`; ``"two-state"``:
@@ -157,5 +163,6 @@ def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: D
     if model == "eq7":
         return simulate_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
     if model == "two-state":
-        return simulate_two_state_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
+        return simulate_two_state_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0,
+                                            accumulator_conductance=accumulator_conductance)
     raise SettingsError(f"--model: unknown model {model!r}, choose eq7 or two-state")

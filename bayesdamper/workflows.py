@@ -179,10 +179,14 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
         progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings):.1f} s")
         with _pool(workers) as ex:
             futs = {ex.submit(_worker, task): i for i, task in enumerate(tasks)}
-            for done, fut in enumerate(as_completed(futs), 1):
-                i = futs[fut]
-                results[i] = fut.result()
-                report(i, results[i], done)
+            try:
+                for done, fut in enumerate(as_completed(futs), 1):
+                    i = futs[fut]
+                    results[i] = fut.result()
+                    report(i, results[i], done)
+            except BaseException:  # interrupted or failed: do not start the queued transients
+                ex.shutdown(wait=True, cancel_futures=True)
+                raise
     return results  # type: ignore[return-value]
 
 
