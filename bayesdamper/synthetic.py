@@ -52,8 +52,8 @@ def coloured_noise(n: int, sd: float, phi: float, rng: np.random.Generator) -> n
 def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: DamperConstants = RIG_A_DAMPER,
                     flow: FlowCoefficients = PAPER_FLOW, sample_rate: float = 250.0, noise_n: float = 0.0,
                     noise_phi: float = 0.0, model: str = "eq7", rng: np.random.Generator | None = None,
-                    effects: dict | None = None,
-                    accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                    effects: dict | None = None, accumulator_conductance: float = TWO_STATE_ACCUMULATOR
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One test: sample times [s], measured displacement [m], measured force [N].
 
     ``effects`` (``{effect: {param: value}}``, :mod:`bayesdamper.effects`) injects effects into the

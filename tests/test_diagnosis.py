@@ -69,9 +69,9 @@ EFFECT_CASES = ["none", "friction", "backlash", "actuator_lag", "valve_dynamics"
 #: Force noise of the synthetic tests [N] (rig-A's plateau noise is ~12 N).
 LOOP_NOISE_N = 15.0
 #: Truth of the base model: the two-state model eq. (1) without accumulator. At these values eq. (7)
-#: re-fitted per transient leaves a pooled J of ~0.004 on noise-free data: never exactly right, but
+#: re-fitted per transient leaves a pooled J of ~0.0026 on noise-free data: never exactly right, but
 #: close enough that the control must select nothing.
-LOOP_TRUTH = (300.0, 3.0e5)
+LOOP_TRUTH = (1000.0, 3.0e5)
 
 
 def _loop_case(effect: str, tmp_path):
