@@ -16,10 +16,11 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
-# The main job: validate, segment, stage 1, Bayesian stage 2 on rig-A.
+# The main job on rig-A: validate and segment (check), stage 1 + Bayesian stage 2 (identify), the residual
+# diagnosis (diagnose) and the HTML report, all by `bayesdamper report`.
 demo: $(STAMP)
-	$(BD) check data/rig-A
-	$(BD) identify data/rig-A --out $(OUT)
+	$(BD) check data/rig-A --no-fit
+	$(BD) report data/rig-A --out $(OUT)
 
 # Default test suite (fast); slow statistical checks are `make test-slow`.
 test: $(STAMP)

@@ -392,6 +392,18 @@ def _friction_corrected_static(plateaus, area: float, coulomb: float, source: st
     return fit_static(corr, source=source)
 
 
+def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
+    """Baseline results stored by ``identify`` in ``out_dir/posteriors`` under the same settings
+    fingerprint (None where a transient has no such file)."""
+    from .workflows import _load_finished, fingerprint_basis, settings_fingerprint
+
+    post_dir = out_dir / "posteriors"
+    if not post_dir.is_dir():
+        return [None] * len(transients)
+    fp = settings_fingerprint(fingerprint_basis(settings.as_dict(), tmax, seed, dataset_sha256))
+    return [_load_finished(post_dir / f"{tr.id}.nc", tr, fp) for tr in transients]
+
+
 def _calibrate_task(args):
     from .identify import identify_transient
 
@@ -460,9 +472,17 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     prov = {"dataset": ds.name, "input_sha256": ds.input_hashes(), "versions": versions(), "seed": seed}
     noise = plateau_noise(segs)
 
-    # 1. the calibrated baseline
-    progress("diagnose: calibrating the eq. (7) baseline")
-    base = identify_all(transients, ds.damper, static.coefficients, settings, seed, workers, None, prov, progress)
+    # 1. the calibrated baseline: re-used from `identify` posteriors in OUT of the same settings, if any
+    base = _reuse_baseline(out_dir, transients, settings, tmax, seed, ds.sha256)
+    todo = [i for i, r in enumerate(base) if r is None]
+    if len(todo) < len(base):
+        progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
+    if todo:
+        progress("diagnose: calibrating the eq. (7) baseline")
+        fresh = identify_all([transients[i] for i in todo], ds.damper, static.coefficients, settings, seed,
+                             workers, None, prov, progress)
+        for i, r in zip(todo, fresh, strict=True):
+            base[i] = r
     base_problems = [TransientProblem.from_transient(tr, ds.damper, static.coefficients) for tr in transients]
     base_resid = _residuals_at_medians(base, base_problems)
     rows = []
