@@ -494,6 +494,10 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         row.update(describe_residual(tr.time - tr.t_step, r, tr.force, rate))
         rows.append(row)
     structure = summarise_structure(rows)
+    structure["parameters_by_kind_median"] = {
+        kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
+               for name in ("alpha_V", "p_R_Pa")}
+        for kind in ("initial", "reversal") if any(r.entry["kind"] == kind for r in base)}
 
     # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient
     rec = {s.record.name: s for s in segs}
@@ -623,6 +627,18 @@ def report_text(d: dict) -> str:
             vals = ", ".join(f"{k} = {v:.4g}" for k, v in d["selected_params"][name].items())
             lines.append(f"Selected: {name} ({vals}): {EFFECTS[name].description}")
     else:
-        lines.append("Selected: none - no candidate effect is supported beyond the threshold.")
+        lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
+                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J.")
+        if d["candidates"]:
+            c = d["candidates"][0]
+            lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J by "
+                         f"only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of the "
+                         "library's effects reproduces it.")
+    kinds = s.get("parameters_by_kind_median", {})
+    if len(kinds) == 2:
+        ini, rev = kinds["initial"], kinds["reversal"]
+        lines.append(f"Median p_R: {ini['p_R_Pa'] / 1e6:.2f} MPa from starts at rest vs {rev['p_R_Pa'] / 1e6:.2f} MPa "
+                     f"from reversals (alpha_V {ini['alpha_V']:.0f} vs {rev['alpha_V']:.0f}): one (alpha_V, p_R) "
+                     "pair does not describe both kinds of step.")
     lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f}.")
     return "\n".join(lines)
