@@ -52,7 +52,8 @@ def _n_ensembles(summary: dict, n_chains: int) -> int:
 def _render(job: Job) -> list[Path]:
     """Draw one figure with :mod:`bayesdamper.plots` and save it (runs in a worker process)."""
     _, func, args, kwargs, stem, formats = job
-    return save_figure(getattr(plots, func)(*args, **kwargs), stem, formats)
+    # per-transient diagnostics (PNG only) have hand-set margins: skip the tight-bbox pass
+    return save_figure(getattr(plots, func)(*args, **kwargs), stem, formats, tight=len(formats) > 1)
 
 
 def _warm_up() -> None:

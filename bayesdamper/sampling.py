@@ -54,7 +54,7 @@ class SamplerSettings:
         or ``"stretch"`` (emcee's default).
     """
 
-    n_ensembles: int = 4
+    n_ensembles: int = 3
     n_walkers: int = 12
     check_every: int = 200
     max_steps: int = 6000
