@@ -76,7 +76,6 @@ _C51, _C52, _C53, _C54, _C61, _C62, _C63, _C64, _C65 = (_m._C51, _m._C52, _m._C5
                                                         _m._C63, _m._C64, _m._C65)
 _E21, _E22, _E23, _E24, _E25 = _m._E21, _m._E22, _m._E23, _m._E24, _m._E25
 _E31, _E32, _E33, _E34, _E35 = _m._E31, _m._E32, _m._E33, _m._E34, _m._E35
-_FAC_SHRINK, _FAC_GROW, _SAFE = _m._FAC_SHRINK, _m._FAC_GROW, _m._SAFE
 
 __all__ = [
     "EFFECT_SLOTS", "MAX_STEPS", "AugmentedProblem", "backlash_knots", "pack_effects",
@@ -467,7 +466,7 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                     last = False
                     reject = True
                     continue
-                fac = max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
+                fac = _m.step_factor(err)
                 h_new = h / fac
                 if err > 1.0:
                     reject = True
@@ -476,10 +475,8 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                     continue
                 n_steps += 1
                 n_acc_seg += 1
-                if n_acc_seg > 1:  # Gustafsson predictive controller
-                    fac_g = (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE
-                    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, fac_g))
-                    h_new = h / max(fac, fac_g)
+                if n_acc_seg > 1:
+                    h_new = _m.predictive_step(h, fac, err, h_acc, err_acc)
                 h_acc = h
                 err_acc = max(0.01, err)
                 t_new = tb if last else t + h

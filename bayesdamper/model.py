@@ -88,6 +88,21 @@ _E34, _E35 = 24.76722511418386, -6.594389125716872
 _FAC_SHRINK, _FAC_GROW, _SAFE = 5.0, 1.0 / 6.0, 0.9
 
 
+@njit(cache=True)
+def step_factor(err):
+    """Step-size divisor h / h_new from the scaled local error of an order-4(3) step (clamped)."""
+    return max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
+
+
+@njit(cache=True)
+def predictive_step(h, fac, err, h_acc, err_acc):
+    """Next step after an accepted one: Gustafsson's predictive controller (Hairer & Wanner IV.8),
+    never larger than the standard controller's ``h / fac``. ``h_acc``, ``err_acc``: previous accepted
+    step and its error."""
+    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE))
+    return h / max(fac, fac_g)
+
+
 # ----------------------------------------------------------------------------- kernel internals
 @njit(cache=True)
 def _rhs(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base):
@@ -308,7 +323,7 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                     last = False
                     reject = True
                     continue
-                fac = max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
+                fac = step_factor(err)
                 h_new = h / fac
                 if err > 1.0:
                     reject = True
@@ -318,10 +333,8 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                 # accepted step
                 n_steps += 1
                 n_acc_seg += 1
-                if n_acc_seg > 1:  # Gustafsson predictive controller
-                    fac_g = (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE
-                    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, fac_g))
-                    h_new = h / max(fac, fac_g)
+                if n_acc_seg > 1:
+                    h_new = predictive_step(h, fac, err, h_acc, err_acc)
                 h_acc = h
                 err_acc = max(0.01, err)
                 t_new = tb if last else t + h
