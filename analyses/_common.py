@@ -11,10 +11,10 @@ import os
 import time
 from pathlib import Path
 
-from bayesdamper import workflows
-from bayesdamper.identify import StageTwoSettings, TransientResult
-from bayesdamper.sampling import SamplerSettings
-from bayesdamper.segmentation import Transient
+from bayesdamper.inference.sampling import SamplerSettings
+from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
+from bayesdamper.io.segmentation import Transient
+from bayesdamper.run import workflows
 
 #: Repository root (this file lives in ``<root>/analyses``).
 ROOT = Path(__file__).resolve().parents[1]

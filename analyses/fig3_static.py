@@ -12,8 +12,9 @@ import time
 
 from _common import TMAX, parser
 
-from bayesdamper import plots, workflows
-from bayesdamper.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.report import plots
+from bayesdamper.run import workflows
 
 
 def main(argv: list[str] | None = None) -> None:

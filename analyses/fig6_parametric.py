@@ -13,8 +13,8 @@ import time
 import numpy as np
 from _common import parser
 
-from bayesdamper import plots
-from bayesdamper.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.report import plots
 
 #: Output times of the full and the quick figure over the 3 s window.
 N_TIMES, N_TIMES_QUICK = 601, 61

@@ -13,8 +13,8 @@ import time
 
 from _common import add_sampling_arguments, identify_results, parser, sampling_choice
 
-from bayesdamper import plots
-from bayesdamper.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
+from bayesdamper.report import plots
 
 #: Transients per page.
 PANELS = 12

@@ -1,6 +1,6 @@
 """Figure 9: identified p_R and 100/α_V of rig-A against piston speed, with the drift trend.
 
-Runs the ``identify`` workflow (:func:`bayesdamper.workflows.run_identify`, figures off) into
+Runs the ``identify`` workflow (:func:`bayesdamper.run.workflows.run_identify`, figures off) into
 ``<out>/identify/`` (its ``summary.json`` and posteriors), then draws ``figure9_drift.{png,pdf}`` from the
 summary and writes ``drift.json`` to ``results/analyses/fig9_drift/``. ``--quick``: six transients and a
 short step budget (not converged; exercises the same code).
@@ -12,8 +12,9 @@ import time
 
 from _common import add_sampling_arguments, parser, sampling_choice
 
-from bayesdamper import plots, workflows
-from bayesdamper.outputs import atomic_write_json, save_figure
+from bayesdamper.io.outputs import atomic_write_json, save_figure
+from bayesdamper.report import plots
+from bayesdamper.run import workflows
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -1,7 +1,8 @@
 """bayesdamper: Bayesian identification of single-state liquid-damper models from triangular tests."""
 
-from .errors import BayesDamperError, DataError, SettingsError
-from .params import (
+from bayesdamper._version import __version__
+from bayesdamper.core.errors import BayesDamperError, DataError, SettingsError
+from bayesdamper.core.params import (
     ATMOSPHERIC_PRESSURE,
     PAPER_FLOW,
     RIG_A_DAMPER,
@@ -9,8 +10,6 @@ from .params import (
     DynamicParameters,
     FlowCoefficients,
 )
-
-__version__ = "0.1.0"
 
 __all__ = [
     "ATMOSPHERIC_PRESSURE",

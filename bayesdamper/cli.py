@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .errors import BayesDamperError
+from bayesdamper.core.errors import BayesDamperError
 
 
 def _floats(text: str) -> list[float]:
@@ -95,26 +95,26 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "check":
-            from .workflows import run_check
+            from bayesdamper.run.workflows import run_check
 
             run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit)
         elif args.command == "simulate":
-            from .effects import parse_effect_specs
-            from .synthetic import run_simulate
+            from bayesdamper.io.synthetic import run_simulate
+            from bayesdamper.physics.effects import parse_effect_specs
 
             run_simulate(args.out_dir, velocities_mm_s=args.velocities, alpha_v=args.alpha_v, p_r=args.p_r,
                          noise_n=args.noise_n, noise_phi=args.noise_phi, seed=args.seed,
                          sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
                          effects=parse_effect_specs(args.effect))
         elif args.command == "diagnose":
-            from .diagnosis import run_diagnosis
+            from bayesdamper.diagnosis.loop import run_diagnosis
 
             run_diagnosis(args.data_dir, args.out, seed=args.seed,
                           effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
                           workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
                           max_steps=args.max_steps, figures=not args.no_figures)
         elif args.command in ("identify", "report"):
-            from .workflows import run_identify, run_report
+            from bayesdamper.run.workflows import run_identify, run_report
 
             run = run_identify if args.command == "identify" else run_report
             run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,

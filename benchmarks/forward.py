@@ -9,7 +9,7 @@ Measured:
   * the kernel's µs per solve at its default tolerances (after a warm-up compile; median of
     sweeps over all problems), and at looser rtol for reference,
   * ``scipy.integrate.solve_ivp(method="LSODA", rtol=1e-8)`` µs per solve (plain-Python right-hand
-    side, knots as breakpoints: :func:`bayesdamper.model.reference_single_state`),
+    side, knots as breakpoints: :func:`bayesdamper.physics.model.reference_single_state`),
   * the worst relative L2 error of the kernel against ``Radau`` at ``rtol=1e-11``, ``atol=1e-9`` Pa.
 
 Usage: ``python benchmarks/forward.py [--json] [--quick]``. With ``--json`` the last line is
@@ -25,9 +25,9 @@ import time
 
 import numpy as np
 
-from bayesdamper.model import DEFAULT_ATOL, DEFAULT_RTOL, reference_single_state, solve_single_state
-from bayesdamper.orifice import pressure_drop
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.physics.model import DEFAULT_ATOL, DEFAULT_RTOL, reference_single_state, solve_single_state
+from bayesdamper.physics.orifice import pressure_drop
 
 SAMPLE_RATE = 250.0  # [Hz]
 WINDOW = 3.0  # [s]
@@ -70,7 +70,7 @@ def kernel(t, pb, rtol=DEFAULT_RTOL, atol=DEFAULT_ATOL):
 
 
 def scipy_solve(t, pb, method, rtol, atol):
-    from bayesdamper.excitation import PiecewiseLinear
+    from bayesdamper.physics.excitation import PiecewiseLinear
 
     return reference_single_state(t, PiecewiseLinear(pb["knot_t"], pb["knot_y"]), RIG_A_DAMPER, PAPER_FLOW,
                                   DynamicParameters(pb["alpha_v"], pb["p_r"]), dp0=pb["dp0"], t0=0.0,

@@ -11,16 +11,16 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bayesdamper import augmented as aug
-from bayesdamper.effects import EFFECTS
-from bayesdamper.effects.friction import SIGN_VELOCITY_M_S
-from bayesdamper.effects.inertia import CORNER_TIME_S
-from bayesdamper.effects.valve_dynamics import MIN_OPENING
-from bayesdamper.errors import BayesDamperError, SettingsError
-from bayesdamper.excitation import PiecewiseLinear
-from bayesdamper.model import simulate_two_state, solve_single_state
-from bayesdamper.orifice import pressure_drop
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.core.errors import BayesDamperError, SettingsError
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.physics import augmented as aug
+from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.physics.effects.friction import SIGN_VELOCITY_M_S
+from bayesdamper.physics.effects.inertia import CORNER_TIME_S
+from bayesdamper.physics.effects.valve_dynamics import MIN_OPENING
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.model import simulate_two_state, solve_single_state
+from bayesdamper.physics.orifice import pressure_drop
 
 D = RIG_A_DAMPER
 AREA = D.piston_area
@@ -223,9 +223,9 @@ def test_wrapper_raises_one_line_error():
 # ----------------------------------------------------------------------------- problem binding
 @pytest.fixture(scope="module")
 def friction_dataset(tmp_path_factory):
-    from bayesdamper.data import load_dataset
-    from bayesdamper.segmentation import segment_dataset
-    from bayesdamper.synthetic import write_dataset
+    from bayesdamper.io.dataset import load_dataset
+    from bayesdamper.io.segmentation import segment_dataset
+    from bayesdamper.io.synthetic import write_dataset
 
     effects = {"friction": {"coulomb_N": 150.0}, "actuator_lag": {"time_constant_s": 0.02},
                "backlash": {"gap_m": 2e-5}}

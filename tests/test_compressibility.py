@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bayesdamper.compressibility import (
+from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.params import ATMOSPHERIC_PRESSURE
+from bayesdamper.physics.compressibility import (
     bulk_modulus,
     bulk_modulus_and_slope,
     bulk_modulus_general,
@@ -13,8 +15,6 @@ from bayesdamper.compressibility import (
     chamber_bulk_moduli,
     chamber_bulk_moduli_scalar,
 )
-from bayesdamper.errors import SettingsError
-from bayesdamper.params import ATMOSPHERIC_PRESSURE
 
 #: Closed-form identities evaluated in double precision: a few ulp per operation.
 IDENTITY_RTOL = 1e-13

@@ -11,12 +11,12 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 import pytest
 
-from bayesdamper.excitation import PiecewiseLinear
-from bayesdamper.identify import StageTwoSettings, identify_transient
-from bayesdamper.model import simulate_single_state
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.segmentation import Transient
-from bayesdamper.synthetic import coloured_noise
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
+from bayesdamper.io.segmentation import Transient
+from bayesdamper.io.synthetic import coloured_noise
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.model import simulate_single_state
 
 #: Replicates per noise type (the issue asks for at least 40).
 N_REPLICATES = 40

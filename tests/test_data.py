@@ -1,4 +1,4 @@
-"""Tests of bayesdamper.data: loading a data set and rejecting every class of bad input."""
+"""Tests of bayesdamper.io.dataset: loading a data set and rejecting every class of bad input."""
 
 from __future__ import annotations
 
@@ -10,9 +10,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bayesdamper.data import COLUMNS, Dataset, TestRecord, load_dataset, load_record
-from bayesdamper.errors import DataError, SettingsError
-from bayesdamper.params import DamperConstants, FlowCoefficients
+from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.core.params import DamperConstants, FlowCoefficients
+from bayesdamper.io.dataset import COLUMNS, Dataset, TestRecord, load_dataset, load_record
 
 HEADER = ",".join(COLUMNS)
 RIG_A = Path(__file__).resolve().parents[1] / "data" / "rig-A"

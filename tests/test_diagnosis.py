@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bayesdamper.diagnosis import (
+from bayesdamper.diagnosis.loop import (
     SELECT_DELTA_BIC,
     effective_sizes,
     plateau_noise,
@@ -75,9 +75,9 @@ LOOP_TRUTH = (1000.0, 3.0e5)
 
 
 def _loop_case(effect: str, tmp_path):
-    from bayesdamper.diagnosis import run_diagnosis
-    from bayesdamper.params import DynamicParameters
-    from bayesdamper.synthetic import write_dataset
+    from bayesdamper.core.params import DynamicParameters
+    from bayesdamper.diagnosis.loop import run_diagnosis
+    from bayesdamper.io.synthetic import write_dataset
 
     data = tmp_path / f"data_{effect}"
     effects = None if effect == "none" else {effect: {}}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from bayesdamper.drift import fit_drift
+from bayesdamper.inference.drift import fit_drift
 
 SPEEDS = np.repeat(np.linspace(0.5e-3, 1.5e-3, 11), 3)
 

@@ -1,7 +1,7 @@
 """The effect library: registry, parameter specs, the command-line form, and each effect's physics.
 
 Physics is checked on rig A's protocol (rest, then a 5 mm triangle) through
-:func:`bayesdamper.augmented.simulate_augmented` against analytic limits: off values reproduce
+:func:`bayesdamper.physics.augmented.simulate_augmented` against analytic limits: off values reproduce
 eq. (7); friction and inertia add exactly known forces; backlash, lag, valve and compliance show
 their defining signatures.
 """
@@ -11,8 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from bayesdamper.augmented import EFFECT_SLOTS, pack_effects, simulate_augmented, unpack_effects
-from bayesdamper.effects import (
+from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.physics.augmented import EFFECT_SLOTS, pack_effects, simulate_augmented, unpack_effects
+from bayesdamper.physics.effects import (
     EFFECT_NAMES,
     EFFECTS,
     complete_effects,
@@ -20,12 +22,10 @@ from bayesdamper.effects import (
     parse_effect_spec,
     parse_effect_specs,
 )
-from bayesdamper.effects.backlash import backlash_knots
-from bayesdamper.effects.inertia import CORNER_TIME_S
-from bayesdamper.errors import SettingsError
-from bayesdamper.excitation import PiecewiseLinear
-from bayesdamper.model import simulate_single_state
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.physics.effects.backlash import backlash_knots
+from bayesdamper.physics.effects.inertia import CORNER_TIME_S
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.model import simulate_single_state
 
 D = RIG_A_DAMPER
 AREA = D.piston_area

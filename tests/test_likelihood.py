@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import integrate, linalg, stats
 
-from bayesdamper.errors import SettingsError
-from bayesdamper.excitation import PiecewiseLinear
-from bayesdamper.likelihood import (
+from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.inference.likelihood import (
     AR1Noise,
     LogPosterior,
     WhiteNoise,
@@ -16,9 +16,9 @@ from bayesdamper.likelihood import (
     cost_j,
     make_noise_model,
 )
-from bayesdamper.model import simulate_single_state
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.problem import TransientProblem
+from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.model import simulate_single_state
 
 #: Agreement of two float64 evaluations of the same log density (sums of ~750 terms).
 LOGPDF_RTOL = 1e-9

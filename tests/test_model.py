@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bayesdamper.compressibility import bulk_modulus
-from bayesdamper.errors import BayesDamperError, SettingsError
-from bayesdamper.excitation import PiecewiseLinear
-from bayesdamper.model import (
+from bayesdamper.core.errors import BayesDamperError, SettingsError
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
+from bayesdamper.physics.compressibility import bulk_modulus
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.model import (
     STATUS_MESSAGES,
     reference_single_state,
     simulate_single_state,
@@ -20,8 +21,7 @@ from bayesdamper.model import (
     solve_single_state,
     solve_single_state_batch,
 )
-from bayesdamper.orifice import flow_rate, pressure_drop
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
+from bayesdamper.physics.orifice import flow_rate, pressure_drop
 
 D = RIG_A_DAMPER
 T = np.arange(751) / 250.0  # the 3 s transient window at 250 Hz [s]

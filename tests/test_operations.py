@@ -21,10 +21,10 @@ from pathlib import Path
 import pytest
 
 from bayesdamper import cli
-from bayesdamper.errors import DataError, SettingsError
-from bayesdamper.params import DynamicParameters
-from bayesdamper.synthetic import write_dataset
-from bayesdamper.workflows import RUN_FILE, run_identify, settings_fingerprint
+from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.core.params import DynamicParameters
+from bayesdamper.io.synthetic import write_dataset
+from bayesdamper.run.workflows import RUN_FILE, run_identify, settings_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The transients every run here samples (one initial step, one reversal).

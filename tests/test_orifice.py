@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from bayesdamper.orifice import flow_rate, orifice_flow, orifice_flow_and_slope, pressure_drop
-from bayesdamper.params import PAPER_FLOW, FlowCoefficients
+from bayesdamper.core.params import PAPER_FLOW, FlowCoefficients
+from bayesdamper.physics.orifice import flow_rate, orifice_flow, orifice_flow_and_slope, pressure_drop
 
 #: Round trips are a few flops in double precision: 1e-12 leaves room for the sqrt and the
 #: conditioning of eq. (8) (its condition number is at most 1).

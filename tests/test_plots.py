@@ -11,10 +11,10 @@ matplotlib.use("Agg")
 from matplotlib.container import ErrorbarContainer  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from bayesdamper import plots  # noqa: E402
-from bayesdamper.figures import write_identify_figures  # noqa: E402
-from bayesdamper.identify import TransientResult  # noqa: E402
-from bayesdamper.static import StaticFit, fit_direction  # noqa: E402
+from bayesdamper.inference.stage1 import StaticFit, fit_direction  # noqa: E402
+from bayesdamper.inference.stage2 import TransientResult  # noqa: E402
+from bayesdamper.report import plots  # noqa: E402
+from bayesdamper.report.figures import write_identify_figures  # noqa: E402
 
 #: Relative tolerance for reading plotted values back (float64 round trip through display scaling).
 READBACK_RTOL = 1e-12

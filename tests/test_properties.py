@@ -12,13 +12,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from bayesdamper.data import COLUMNS, DAMPER_FILE, load_dataset
-from bayesdamper.errors import DataError
-from bayesdamper.likelihood import LogPosterior, make_noise_model
-from bayesdamper.model import solve_single_state
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER
-from bayesdamper.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace
-from bayesdamper.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, TransientProblem
+from bayesdamper.core.errors import DataError
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
+from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
+from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace
+from bayesdamper.inference.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, TransientProblem
+from bayesdamper.io.dataset import COLUMNS, DAMPER_FILE, load_dataset
+from bayesdamper.physics.model import solve_single_state
 
 #: Examples per loader property (files are tiny: each example is a few milliseconds).
 LOADER_EXAMPLES = 60

@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from bayesdamper.data import TestRecord
-from bayesdamper.identify import StageTwoSettings, identify_transient, shape_report
-from bayesdamper.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.priors import ParameterSpace
-from bayesdamper.sampling import SamplerSettings, sample_posterior
-from bayesdamper.segmentation import segment_record
-from bayesdamper.synthetic import simulate_record
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.inference.priors import ParameterSpace
+from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
+from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient, shape_report
+from bayesdamper.io.dataset import TestRecord
+from bayesdamper.io.segmentation import segment_record
+from bayesdamper.io.synthetic import simulate_record
 
 TRUTH = DynamicParameters(1 / 0.03, 3.0e5)
 #: Force noise of the synthetic records [N], about rig-A's plateau noise.
@@ -96,7 +96,7 @@ def test_shape_report_flags_ridge_and_bound():
 
 def test_initial_positions_near_a_bound_stay_distinct():
     """A start on a prior bound must not put walkers on one shared value (they would never separate)."""
-    from bayesdamper.sampling import initial_positions
+    from bayesdamper.inference.sampling import initial_positions
 
     lower, upper = np.zeros(2), np.ones(2)
     pos = initial_positions(np.array([1.0, 0.5]), lower, upper, 12, np.random.default_rng(0))

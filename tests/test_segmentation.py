@@ -1,4 +1,4 @@
-"""Tests of bayesdamper.segmentation on synthetic triangles with known corners and on rig-A."""
+"""Tests of bayesdamper.io.segmentation on synthetic triangles with known corners and on rig-A."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bayesdamper.data import load_dataset, load_record
-from bayesdamper.errors import DataError, SettingsError
-from bayesdamper.params import RIG_A_DAMPER
-from bayesdamper.segmentation import (
+from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.core.params import RIG_A_DAMPER
+from bayesdamper.io.dataset import load_dataset, load_record
+from bayesdamper.io.segmentation import (
     PLATEAU_FRACTION,
     PLATEAU_MARGIN,
     segment_dataset,
@@ -112,7 +112,7 @@ def triangle(
 
 @pytest.fixture
 def load_triangle(make_dataset):
-    """Write a Triangle as a one-record data set and load it back through bayesdamper.data."""
+    """Write a Triangle as a one-record data set and load it back through bayesdamper.io.dataset."""
 
     def load(tri: Triangle, name: str = "tri", tmax: float = 3.0):
         folder = make_dataset({name: (tri.t, tri.y, tri.f)}, folder=f"ds_{name}")

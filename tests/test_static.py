@@ -5,9 +5,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bayesdamper.errors import DataError
-from bayesdamper.params import PAPER_FLOW
-from bayesdamper.static import fit_direction, fit_static
+from bayesdamper.core.errors import DataError
+from bayesdamper.core.params import PAPER_FLOW
+from bayesdamper.inference.stage1 import fit_direction, fit_static
 
 AREA = 4.2e-3
 SPEEDS = np.linspace(0.5e-3, 1.5e-3, 11)

@@ -1,0 +1,273 @@
+"""emcee sampling of one transient's posterior, with convergence checked rather than assumed.
+
+emcee's walkers are not independent chains, so R-hat is computed across several *independently
+started* ensembles, each with its own random generator and its own dispersed start. The stopping rule
+is the integrated autocorrelation time τ: every ensemble runs until its post-burn-in chain is longer
+than ``TAU_FACTOR`` τ for every parameter and τ has settled (changed by less than ``TAU_RTOL`` between
+checks). Only then are the rank-normalised R-hat (across ensembles) and the bulk ESS checked against
+``GOOD_RHAT`` and ``MIN_ESS``. A run that exhausts its step budget first is reported as not converged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import emcee
+import numpy as np
+
+from bayesdamper.inference import posterior as post
+
+#: Chain length required, in integrated autocorrelation times (emcee's documented rule of thumb).
+TAU_FACTOR = 50.0
+#: Relative change of τ between two checks below which τ counts as settled.
+TAU_RTOL = 0.05
+#: Largest acceptable rank-normalised split R-hat across ensembles (Vehtari et al. 2021).
+GOOD_RHAT = 1.01
+#: Smallest acceptable bulk effective sample size per parameter.
+MIN_ESS = 1000.0
+#: R-hat above which ensembles are taken to sit in different modes once τ has settled: more steps do
+#: not cure that, so the run stops and is reported as not converged (multimodal).
+GROSS_RHAT = 1.1
+#: Relative spread, in the transformed variables, between ensembles' independent starting balls.
+START_SPREAD = 0.05
+
+
+@dataclass(frozen=True)
+class SamplerSettings:
+    """Settings of :func:`sample_posterior` (stored with every posterior).
+
+    Attributes
+    ----------
+    n_ensembles : int
+        Independently started ensembles (the "chains" of R-hat).
+    n_walkers : int
+        Walkers per ensemble.
+    check_every : int
+        Steps between convergence checks.
+    max_steps : int
+        Step budget per ensemble; reaching it without convergence is reported, not accepted.
+    move : str
+        ``"de"`` (default: differential evolution 80% + snooker 20%, which follows the long
+        (log α_V, log p_R) ridges with τ about three times shorter than the stretch move on rig-A)
+        or ``"stretch"`` (emcee's default).
+    """
+
+    n_ensembles: int = 3
+    n_walkers: int = 12
+    check_every: int = 200
+    max_steps: int = 6000
+    move: str = "de"
+    tau_factor: float = TAU_FACTOR
+    tau_rtol: float = TAU_RTOL
+    rhat_max: float = GOOD_RHAT
+    ess_min: float = MIN_ESS
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class SamplingResult:
+    """Post-burn-in samples and convergence diagnostics of one posterior.
+
+    Attributes
+    ----------
+    chain : ndarray, shape (n_ensembles, n_steps, n_walkers, ndim)
+        Transformed parameter samples after burn-in.
+    log_prob : ndarray, shape (n_ensembles, n_steps, n_walkers)
+    tau : ndarray, shape (ndim,)
+        Integrated autocorrelation time [steps], worst ensemble per parameter.
+    rhat, ess_bulk : ndarray, shape (ndim,)
+    n_steps : int
+        Steps run per ensemble (burn-in included).
+    burn_in : int
+    converged : bool
+    reason : str
+        Why the run stopped ("converged", or what failed).
+    acceptance : float
+        Mean acceptance fraction.
+    n_evaluations : int
+        Log-posterior evaluations.
+    """
+
+    chain: np.ndarray
+    log_prob: np.ndarray
+    tau: np.ndarray
+    rhat: np.ndarray
+    ess_bulk: np.ndarray
+    n_steps: int
+    burn_in: int
+    converged: bool
+    reason: str
+    acceptance: float
+    n_evaluations: int
+
+    def flat(self) -> np.ndarray:
+        """All post-burn-in samples, shape (n_samples, ndim)."""
+        return self.chain.reshape(-1, self.chain.shape[-1])
+
+
+def _moves(name: str):
+    if name == "stretch":
+        return None
+    if name == "de":
+        # DE follows ridges; the stretch share pulls a walker that strayed into a low-probability
+        # corner back to the others (DE alone moves it by the ensemble's own small differences).
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.StretchMove(), 0.2)]
+    if name == "de-snooker":
+        return [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    raise ValueError(f"unknown move {name!r}")
+
+
+def initial_positions(start: np.ndarray, lower: np.ndarray, upper: np.ndarray, n_walkers: int,
+                      rng: np.random.Generator, scale: np.ndarray | None = None) -> np.ndarray:
+    """A ball of ``n_walkers`` points around ``start``, inside the prior box.
+
+    ``scale`` is a covariance of the posterior near ``start`` (a Laplace approximation): the ball's
+    centre is drawn one standard deviation away from ``start`` and its walkers one more, so independent
+    ensembles start overdispersed relative to the posterior, as R-hat needs. Without ``scale`` a
+    diagonal ball of ``START_SPREAD`` of the prior box is used.
+    """
+    span = upper - lower
+    if scale is None:
+        scale = np.diag((START_SPREAD * 0.2 * span) ** 2)
+    chol = np.linalg.cholesky(scale)
+    centre = start + chol @ rng.standard_normal(start.size)
+    pos = centre + rng.standard_normal((n_walkers, start.size)) @ chol.T
+    # Reflect at the prior bounds rather than clip: clipped walkers would share a coordinate exactly,
+    # and neither DE nor stretch moves can ever separate them again.
+    pos = np.where(pos > upper, 2 * upper - pos, pos)
+    pos = np.where(pos < lower, 2 * lower - pos, pos)
+    bad = (pos <= lower) | (pos >= upper)
+    pos[bad] = (lower + rng.uniform(0.25, 0.75, pos.shape) * span)[bad]
+    return pos
+
+
+def laplace_covariance(log_prob: Callable[[np.ndarray], float], x0: np.ndarray, lower: np.ndarray,
+                       upper: np.ndarray) -> np.ndarray | None:
+    """Covariance of the Laplace approximation at ``x0``: the inverse of minus the Hessian of the
+    log-posterior by central finite differences. None if it is not positive definite (a ridge that
+    runs into a prior bound, say): the caller then falls back to a fixed ball.
+    """
+    n = x0.size
+    h = 1e-4 * (upper - lower)
+    f0 = log_prob(x0)
+    hess = np.empty((n, n))
+    for i in range(n):
+        ei = np.zeros(n)
+        ei[i] = h[i]
+        hess[i, i] = (log_prob(x0 + ei) - 2 * f0 + log_prob(x0 - ei)) / h[i] ** 2
+        for j in range(i):
+            ej = np.zeros(n)
+            ej[j] = h[j]
+            hess[i, j] = hess[j, i] = (log_prob(x0 + ei + ej) - log_prob(x0 + ei - ej) - log_prob(x0 - ei + ej)
+                                       + log_prob(x0 - ei - ej)) / (4 * h[i] * h[j])
+    if not np.all(np.isfinite(hess)):
+        return None
+    try:
+        cov = np.linalg.inv(-hess)
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return None
+    # never start wider than a quarter of the prior box in any direction
+    sd = np.sqrt(np.diag(cov))
+    shrink = np.minimum(1.0, 0.25 * (upper - lower) / sd)
+    return cov * np.outer(shrink, shrink)
+
+
+def _tau(chain: np.ndarray) -> np.ndarray:
+    """τ per parameter of one ensemble's chain, shape (n_steps, n_walkers, ndim).
+
+    A parameter whose walkers never moved has no defined τ; it is reported as infinite, so the run
+    cannot pass as converged.
+    """
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau = emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
+    return np.where(np.isfinite(tau), tau, np.inf)
+
+
+def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray, lower: np.ndarray,
+                     upper: np.ndarray, settings: SamplerSettings | None = None, seed: int = 0,
+                     progress: Callable[[str], None] | None = None) -> SamplingResult:
+    """Sample one posterior with ``settings.n_ensembles`` independent emcee ensembles.
+
+    Parameters
+    ----------
+    log_prob : callable
+        Log-posterior of the transformed vector; returns a float, -inf where impossible. If it has a
+        ``batch`` method (rows -> values), emcee calls that once per step for all walkers.
+    start : ndarray, shape (ndim,)
+        A high-posterior point (the Nelder-Mead optimum) in transformed variables.
+    lower, upper : ndarray, shape (ndim,)
+        Prior box in transformed variables.
+    seed : int
+        Seeds every ensemble's generator (through ``numpy.random.SeedSequence``).
+    progress : callable, optional
+        Receives a one-line status after every convergence check.
+    """
+    settings = settings or SamplerSettings()
+    start = np.asarray(start, dtype=float)
+    ndim = start.size
+    seeds = np.random.SeedSequence(seed).spawn(settings.n_ensembles)
+    scale = laplace_covariance(log_prob, start, lower, upper)
+    samplers, states = [], []
+    for ss in seeds:
+        rng = np.random.default_rng(ss)
+        if hasattr(log_prob, "batch"):  # one compiled call per ensemble step for all walkers
+            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=_moves(settings.move),
+                                      vectorize=True)
+        else:
+            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=_moves(settings.move))
+        # emcee copies NumPy's global state at construction; give each ensemble its own instead.
+        s.random_state = np.random.RandomState(rng.integers(2**32 - 1)).get_state()
+        p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)
+        samplers.append(s)
+        states.append(p0)
+
+    tau_prev = None
+    reason = "step budget exhausted before τ settled"
+    converged = False
+    n_steps = 0
+    tau = np.full(ndim, np.inf)
+    rhat = np.full(ndim, np.inf)
+    ess = np.zeros(ndim)
+    burn = 0
+    while n_steps < settings.max_steps:
+        n = min(settings.check_every, settings.max_steps - n_steps)
+        states = [s.run_mcmc(st, n, progress=False) for s, st in zip(samplers, states, strict=True)]
+        n_steps += n
+        chains = np.stack([s.get_chain() for s in samplers])  # (E, T, W, D)
+        burn = min(n_steps // 3, int(math.ceil(10 * np.max(tau)))) if np.all(np.isfinite(tau)) else n_steps // 3
+        kept = chains[:, burn:]
+        tau = np.max([_tau(c) for c in kept], axis=0)
+        long_enough = bool(np.all(kept.shape[1] > settings.tau_factor * tau))
+        with np.errstate(invalid="ignore"):
+            settled = tau_prev is not None and bool(np.all(np.abs(tau - tau_prev) < settings.tau_rtol * tau))
+        tau_prev = tau
+        rhat = post.rhat_across_ensembles(kept)
+        ess = post.ess_bulk(kept)
+        if progress is not None:
+            progress(f"steps {n_steps}: τ_max {np.max(tau):.1f}, chain/τ {kept.shape[1] / np.max(tau):.0f}, "
+                     f"R-hat {np.max(rhat):.3f}, ESS {np.min(ess):.0f}")
+        if long_enough and settled:
+            if np.all(rhat <= settings.rhat_max) and np.all(ess >= settings.ess_min):
+                converged, reason = True, "converged"
+                break
+            reason = (f"τ settled but R-hat {np.max(rhat):.3f} (need ≤ {settings.rhat_max}) or "
+                      f"ESS {np.min(ess):.0f} (need ≥ {settings.ess_min:.0f}) not met")
+            if np.max(rhat) > GROSS_RHAT:
+                reason = (f"ensembles disagree (R-hat {np.max(rhat):.2f} > {GROSS_RHAT}) after τ settled: "
+                          "separate modes or a ridge the ensembles cannot cross")
+                break
+        elif long_enough:
+            reason = "chain longer than 50 τ but τ still changing at the step budget"
+        else:
+            reason = f"chain only {kept.shape[1] / np.max(tau):.0f} τ long at the step budget"
+
+    chains = np.stack([s.get_chain() for s in samplers])[:, burn:]
+    log_probs = np.stack([s.get_log_prob() for s in samplers])[:, burn:]
+    acc = float(np.mean([s.acceptance_fraction for s in samplers]))
+    return SamplingResult(chains, log_probs, tau, rhat, ess, n_steps, burn, converged, reason, acc,
+                          n_steps * settings.n_walkers * settings.n_ensembles)

@@ -1,0 +1,163 @@
+"""Stage 1: static flow coefficients from the steady plateaus, eq. (4).
+
+On a plateau the piston moves at constant speed |v| and the force has settled, so the flow through the
+orifice equals the displaced flow, Q = A_P |v| [m^3/s], and Δp = |F| / A_P [Pa]. Eq. (4),
+Δp = C_L Q + C_Q Q |Q|, is linear in (C_L, C_Q), so each flow direction is an ordinary linear
+least-squares problem with design matrix ``[Q, Q^2]``. The covariance of the estimate is
+``s^2 (X^T X)^-1`` with ``s^2`` the residual variance on ``n - 2`` degrees of freedom, so the standard
+errors include the scatter of the plateaus about the curve (model error included), not only the
+within-plateau noise.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from bayesdamper.core.errors import DataError
+from bayesdamper.core.params import FlowCoefficients
+
+#: Names of the four static coefficients, in the order of :meth:`FlowCoefficients.as_array`.
+STATIC_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
+
+#: Fewest plateaus per direction that leave at least one degree of freedom for the residual variance.
+MIN_PLATEAUS_PER_DIRECTION = 3
+
+
+@dataclass(frozen=True)
+class DirectionFit:
+    """Least-squares fit of eq. (4) for one flow direction.
+
+    Attributes
+    ----------
+    direction : int
+        +1 for flow CH1 -> CH2 (coefficients ``_12``), -1 for CH2 -> CH1 (``_21``).
+    laminar : float
+        C_L [kg m^-4 s^-1].
+    quadratic : float
+        C_Q [kg m^-7].
+    covariance : ndarray, shape (2, 2)
+        Covariance of (C_L, C_Q).
+    residual_std : float
+        Standard deviation of the plateau pressure drops about the fitted curve [Pa].
+    flow_rate, pressure_drop : ndarray, shape (n,)
+        The plateau points Q [m^3/s] and Δp [Pa] (both positive magnitudes).
+    """
+
+    direction: int
+    laminar: float
+    quadratic: float
+    covariance: np.ndarray
+    residual_std: float
+    flow_rate: np.ndarray
+    pressure_drop: np.ndarray
+
+    @property
+    def n(self) -> int:
+        """Number of plateaus used."""
+        return int(self.flow_rate.size)
+
+    @property
+    def standard_errors(self) -> np.ndarray:
+        """Standard errors of (C_L, C_Q), shape (2,)."""
+        return np.sqrt(np.diag(self.covariance))
+
+    def predict(self, flow_rate: np.ndarray) -> np.ndarray:
+        """Pressure drop [Pa] of eq. (4) at flow-rate magnitudes ``flow_rate`` [m^3/s]."""
+        q = np.abs(np.asarray(flow_rate, dtype=float))
+        return self.laminar * q + self.quadratic * q * q
+
+
+@dataclass(frozen=True)
+class StaticFit:
+    """Both directions of the stage-1 fit."""
+
+    forward: DirectionFit
+    backward: DirectionFit
+
+    @property
+    def coefficients(self) -> FlowCoefficients:
+        """Point estimate as :class:`FlowCoefficients`."""
+        return FlowCoefficients(self.forward.laminar, self.forward.quadratic,
+                                self.backward.laminar, self.backward.quadratic)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """Block-diagonal covariance of ``[C_L12, C_Q12, C_L21, C_Q21]``, shape (4, 4)."""
+        cov = np.zeros((4, 4))
+        cov[:2, :2] = self.forward.covariance
+        cov[2:, 2:] = self.backward.covariance
+        return cov
+
+    def intervals(self, credible_mass: float = 0.9) -> dict[str, dict[str, float]]:
+        """Equal-tailed intervals of each coefficient (Student-t on the residual degrees of freedom)."""
+        out = {}
+        est = self.coefficients.as_array()
+        se = np.sqrt(np.diag(self.covariance))
+        dofs = (self.forward.n - 2,) * 2 + (self.backward.n - 2,) * 2
+        for name, m, s, dof in zip(STATIC_NAMES, est, se, dofs, strict=True):
+            q = stats.t.ppf(0.5 + credible_mass / 2, max(dof, 1))
+            out[name] = {"median": float(m), "lo": float(m - q * s), "hi": float(m + q * s)}
+        return out
+
+    def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
+        """Draws of ``[C_L12, C_Q12, C_L21, C_Q21]`` from the Gaussian approximation, shape (n, 4)."""
+        return rng.multivariate_normal(self.coefficients.as_array(), self.covariance, size=n)
+
+
+def fit_direction(flow_rate: np.ndarray, pressure_drop: np.ndarray, direction: int,
+                  source: str = "plateaus") -> DirectionFit:
+    """Fit eq. (4) to one direction's plateau points by linear least squares.
+
+    Parameters
+    ----------
+    flow_rate : ndarray, shape (n,)
+        Flow-rate magnitudes Q = A_P |v| [m^3/s].
+    pressure_drop : ndarray, shape (n,)
+        Pressure-drop magnitudes |Δp| [Pa].
+    direction : int
+        +1 or -1, recorded in the result.
+    source : str
+        Named in the error message if the fit is impossible.
+    """
+    q = np.abs(np.asarray(flow_rate, dtype=float))
+    dp = np.abs(np.asarray(pressure_drop, dtype=float))
+    if q.size < MIN_PLATEAUS_PER_DIRECTION:
+        raise DataError(f"{source}: {q.size} plateau(s) in direction {direction:+d}, "
+                        f"need at least {MIN_PLATEAUS_PER_DIRECTION} to fit eq. (4) with an uncertainty")
+    if np.unique(np.round(q / q.max(), 6)).size < 2:
+        raise DataError(f"{source}: all plateaus in direction {direction:+d} share one velocity; "
+                        "eq. (4) needs at least two distinct velocities")
+    # Scale the columns so the normal equations are well conditioned (Q ~ 1e-6, Q^2 ~ 1e-12).
+    x = np.column_stack([q, q * q])
+    scale = np.abs(x).max(axis=0)
+    xs = x / scale
+    coef_s, *_ = np.linalg.lstsq(xs, dp, rcond=None)
+    resid = dp - xs @ coef_s
+    dof = q.size - 2
+    s2 = float(resid @ resid) / dof if dof > 0 else float("nan")
+    cov_s = s2 * np.linalg.inv(xs.T @ xs)
+    coef = coef_s / scale
+    cov = cov_s / np.outer(scale, scale)
+    return DirectionFit(direction, float(coef[0]), float(coef[1]), cov, float(np.sqrt(s2)), q, dp)
+
+
+def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
+    """Stage 1: fit eq. (4) per direction to the plateaus of a data set.
+
+    Parameters
+    ----------
+    plateaus : sequence of :class:`bayesdamper.segmentation.Plateau`
+        Each with ``direction``, ``flow_rate`` [m^3/s] and ``pressure_drop`` [Pa].
+    source : str
+        Data-set name used in error messages.
+    """
+    fits = {}
+    for direction in (1, -1):
+        sel = [p for p in plateaus if p.direction == direction]
+        fits[direction] = fit_direction(np.array([p.flow_rate for p in sel]),
+                                        np.array([p.pressure_drop for p in sel]), direction, source)
+    return StaticFit(fits[1], fits[-1])

@@ -1,0 +1,31 @@
+"""Actuator lag: the piston follows the measured displacement through a first-order lag.
+
+The displacement transducer sits on the actuator; the piston position y_P follows the measured
+actuator displacement y_A through a first-order lag of time constant τ_a::
+
+    dy_P/dt = (y_A - y_P) / τ_a
+
+On a steady ramp of speed v the piston trails by v τ_a and moves at v, so plateaus are unchanged;
+after a velocity step the transient is delayed and rounded over ~τ_a. A transient window starts
+from the steady-ramp state of the preceding segment (trail ``v_prev τ_a``; 0 from rest).
+
+The lag is linear in a piecewise-linear input, so the forward kernel integrates this state exactly
+(closed form on each knot segment, carried across knots); the independent references integrate it
+as an ODE state.
+"""
+
+from __future__ import annotations
+
+from bayesdamper.physics.effects.base import Effect, EffectParam
+
+__all__ = ["EFFECT"]
+
+EFFECT = Effect(
+    name="actuator_lag",
+    description="the piston follows the measured actuator displacement through a first-order lag",
+    params=(
+        EffectParam("time_constant_s", "s", 1.0e-4, 0.5, 0.01, True,
+                    "time constant τ_a of the first-order lag from measured to piston displacement",
+                    slot="lag_tau"),
+    ),
+)

@@ -1,0 +1,31 @@
+"""Inertia: the moving mass adds m a_P to the measured force.
+
+A piecewise-linear displacement has zero acceleration between knots and infinite at them. The rig
+controller rounds the corners: the piston velocity is taken as the knot velocity passed through a
+first-order filter of fixed time constant ``CORNER_TIME_S`` = 0.05 s, and the acceleration a_P is
+the derivative of that filtered velocity (a filter state)::
+
+    dv_f/dt = a_P = (v_knot - v_f) / CORNER_TIME_S,    F = A_P Δp + m a_P
+
+So after a velocity step of size Δv the force carries ``m Δv / CORNER_TIME_S exp(-t / CORNER_TIME_S)``
+and nothing on steady ramps. The simulator uses the same convention, so the effect is identifiable.
+The filter is linear, so the forward kernel integrates it exactly (closed form per knot segment).
+"""
+
+from __future__ import annotations
+
+from bayesdamper.physics.effects.base import Effect, EffectParam
+
+__all__ = ["CORNER_TIME_S", "EFFECT"]
+
+#: Time constant of the rig controller's corner rounding of the piston velocity [s].
+CORNER_TIME_S = 0.05
+
+EFFECT = Effect(
+    name="inertia",
+    description="the moving mass of piston, rod and fixtures adds m times the acceleration at the corners",
+    params=(
+        EffectParam("mass_kg", "kg", 1.0, 1.0e4, 1000.0, True,
+                    "moving mass m between the force transducer and the piston", slot="mass"),
+    ),
+)

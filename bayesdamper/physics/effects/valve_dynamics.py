@@ -1,0 +1,51 @@
+"""Valve dynamics: the check valves of the flow path open with a delay.
+
+The effective opening x in (0, 1] of the flow path scales the static orifice flow of eq. (8),
+``Q = x Q_O(Δp)``, and relaxes to a pressure-dependent steady opening::
+
+    dx/dt = (x_ss(Δp) - x) / τ_v,      x_ss(Δp) = max(1 - exp(-|Δp| / p_v), MIN_OPENING)
+
+with valve time constant τ_v [s] and opening-pressure scale p_v [Pa]; the floor ``MIN_OPENING``
+keeps a little flow at Δp = 0. At a velocity step from steady state x starts at x_ss(Δp0). The
+system becomes two-state: after a step the pressure overshoots while the valve is still closing or
+opening, and may ring (valve chatter, the measured pressure pulses). τ_v = 0 with p_v > 0 is the
+quasi-static valve ``x = x_ss(Δp)``; p_v = 0 means a fully open path (eq. (7)).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from bayesdamper.physics.effects.base import Effect, EffectParam
+
+__all__ = ["EFFECT", "MIN_OPENING", "steady_opening"]
+
+#: Floor of the steady opening x_ss [-], so that flow never stops.
+MIN_OPENING = 1.0e-3
+
+EFFECT = Effect(
+    name="valve_dynamics",
+    description="the check valves open and close with a delay, so the flow lags the pressure "
+                "difference (overshoot, pressure pulses)",
+    params=(
+        EffectParam("time_constant_s", "s", 1.0e-4, 3.0, 0.1, True,
+                    "time constant τ_v of the valve opening", slot="valve_tau"),
+        EffectParam("opening_pressure_Pa", "Pa", 1.0e3, 1.0e6, 5.0e4, True,
+                    "pressure-difference scale p_v over which the valves open", slot="valve_p"),
+    ),
+)
+
+
+@njit(cache=True)
+def steady_opening(dp: float, p_v: float) -> tuple[float, float]:
+    """Steady opening x_ss(Δp) [-] and its slope dx_ss/dΔp [Pa^-1] (module docstring).
+
+    ``dp`` is Δp [Pa]; ``p_v`` > 0 the opening-pressure scale [Pa]. The slope is 0 on the floor.
+    """
+    e = math.exp(-abs(dp) / p_v)
+    x = 1.0 - e
+    if x < MIN_OPENING:
+        return MIN_OPENING, 0.0
+    return x, (e / p_v if dp >= 0.0 else -e / p_v)

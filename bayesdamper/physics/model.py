@@ -1,0 +1,634 @@
+"""Forward models of the damper: the single-state model eq. (7) and the two-state reference eq. (1).
+
+Single-state model, eq. (7) (eq. (5) with the bulk moduli of eq. (6))::
+
+    d(Δp)/dt = (B_1/(V_{0,1} - A_P y_P) + B_2/(V_{0,2} + A_P y_P)) (A_P dy_P/dt - Q_O(Δp))
+
+with Q_O from eq. (8) and y_P piecewise linear (dy_P/dt piecewise constant).
+
+Time origin
+-----------
+The kernel :func:`solve_single_state` starts the transient at the FIRST KNOT ``knot_t[0]``
+(the velocity step t_step) with Δp(t_step) = dp0, and returns Δp at the sample times ``t_out``,
+which must lie in ``[knot_t[0], knot_t[-1]]`` and be non-decreasing. A caller with measured
+samples windows the excitation at the step (``excitation.window(t_step, t_last)``) once and
+passes those knots on every solve. :func:`simulate_single_state` does that for you.
+
+Method
+------
+RODAS4 (Hairer & Wanner, Solving ODEs II, sec. IV.7; coefficients of rodas.f, METH=1): six
+stages, order 4(3), L-stable and stiffly accurate, with the analytic dF/dΔp and dF/dt, the
+order-3 dense output of rodas.f at the sample times, the Gustafsson step predictor, a fresh
+initial step at every knot and no step crossing a knot. For a scalar ODE each linear solve is a
+division. Stiffness (eigenvalues to ~ -2e3 s^-1 for large α_V, p_R) is confined to small |Δp|,
+where the laminar term dominates eq. (8). A Dormand-Prince 5(4) twin measured in development was
+as fast at equal cost but ~10x less accurate at equal rtol; RODAS4 is stable at any step size.
+``benchmarks/forward.py`` gives the speed and accuracy against scipy.
+
+Status codes of the kernel (``STATUS_MESSAGES`` maps them to text): 0 success (output finite),
+1 non-finite state, 2 step-size underflow, 3 maximum number of steps exceeded, 4 a chamber volume
+<= 0 on the excitation, 5 invalid input (times, tolerances or parameters).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from scipy.integrate import solve_ivp
+
+from bayesdamper.core.errors import BayesDamperError, SettingsError
+from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
+from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
+from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
+
+__all__ = [
+    "DEFAULT_ATOL", "DEFAULT_RTOL", "MAX_STEPS", "STATUS_MESSAGES", "TwoStateSolution",
+    "reference_single_state", "simulate_single_state", "simulate_two_state", "solve_single_state",
+    "solve_single_state_batch",
+]
+
+#: Default relative tolerance of the kernel: rel. L2 error <= 6e-6 over the prior box (benchmarks/forward.py).
+DEFAULT_RTOL = 1e-6
+#: Default absolute tolerance of the kernel [Pa] (4e-5 N on rig A; dominates only for |Δp| < 1e4 Pa).
+DEFAULT_ATOL = 1e-2
+#: Maximum number of accepted steps of one kernel solve.
+MAX_STEPS = 20_000
+
+STATUS_OK, STATUS_NONFINITE, STATUS_STEP_UNDERFLOW = 0, 1, 2
+STATUS_MAX_STEPS, STATUS_VOLUME, STATUS_BAD_INPUT = 3, 4, 5
+STATUS_MESSAGES = {
+    STATUS_OK: "success",
+    STATUS_NONFINITE: "the pressure difference became non-finite",
+    STATUS_STEP_UNDERFLOW: "the step size underflowed",
+    STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed",
+    STATUS_VOLUME: "a chamber volume is <= 0 on the excitation",
+    STATUS_BAD_INPUT: "invalid times, tolerances or parameters",
+}
+
+# RODAS4 coefficients (rodas.f, METH = 1); _E2j, _E3j are its dense-output D2j, D3j.
+_GAMMA, _C2, _C3, _C4 = 0.25, 0.386, 0.21, 0.63
+_D1, _D2, _D3, _D4 = 0.25, -0.1043, 0.1035, -0.03620000000000023
+_A21, _A31, _A32 = 1.544, 0.9466785280815826, 0.2557011698983284
+_A41, _A42, _A43 = 3.314825187068521, 2.896124015972201, 0.9986419139977817
+_A51, _A52, _A53, _A54 = 1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895
+_C21, _C31, _C32 = -5.6688, -2.430093356833875, -0.2063599157091915
+_C41, _C42, _C43 = -0.1073529058151375, -9.594562251023355, -20.47028614809616
+_C51, _C52, _C53, _C54 = 7.496443313967647, -10.24680431464352, -33.99990352819905, 11.7089089320616
+_C61, _C62, _C63 = 8.083246795921522, -7.981132988064893, -31.52159432874371
+_C64, _C65 = 16.31930543123136, -6.058818238834054
+_E21, _E22, _E23 = 10.12623508344586, -7.487995877610167, -34.80091861555747
+_E24, _E25 = -7.992771707568823, 1.025137723295662
+_E31, _E32, _E33 = -0.6762803392801253, 6.087714651680015, 16.43084320892478
+_E34, _E35 = 24.76722511418386, -6.594389125716872
+# Step-size control of rodas.f: h_new / h in [1/5, 6], safety factor 0.9.
+_FAC_SHRINK, _FAC_GROW, _SAFE = 5.0, 1.0 / 6.0, 0.9
+
+
+@njit(cache=True)
+def step_factor(err):
+    """Step-size divisor h / h_new from the scaled local error of an order-4(3) step (clamped)."""
+    return max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
+
+
+@njit(cache=True)
+def predictive_step(h, fac, err, h_acc, err_acc):
+    """Next step after an accepted one: Gustafsson's predictive controller (Hairer & Wanner IV.8),
+    never larger than the standard controller's ``h / fac``. ``h_acc``, ``err_acc``: previous accepted
+    step and its error."""
+    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE))
+    return h / max(fac, fac_g)
+
+
+# ----------------------------------------------------------------------------- kernel internals
+@njit(cache=True)
+def _rhs(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base):
+    """Right-hand side of eq. (7) on one knot segment (y_P = yk + vel (t - tk)) [Pa s^-1]."""
+    yp = yk + vel * (t - tk)
+    vol1 = v01 - area * yp
+    vol2 = v02 + area * yp
+    b1 = b2 = b_base
+    if bulk_mode == 0:  # eq. (6): the loaded chamber at p_R + |Δp|, the other at p_R
+        loaded = bulk_modulus_scalar(p_r + abs(dp), b0, alpha_v, p_r)
+        if dp >= 0.0:
+            b1 = loaded
+        else:
+            b2 = loaded
+    q = orifice_flow(dp, fl[0], fl[1], fl[2], fl[3])
+    return (b1 / vol1 + b2 / vol2) * (area * vel - q)
+
+
+@njit(cache=True)
+def _rhs_jac(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base, atol):
+    """Eq. (7) right-hand side F, dF/dΔp [s^-1] and dF/dt [Pa s^-2] on one knot segment."""
+    yp = yk + vel * (t - tk)
+    vol1 = v01 - area * yp
+    vol2 = v02 + area * yp
+    ds_ddp = 0.0
+    b1 = b2 = b_base
+    if bulk_mode == 0:
+        loaded, slope = bulk_modulus_and_slope(p_r + abs(dp), b0, alpha_v, p_r)
+        if dp >= 0.0:
+            b1 = loaded
+            ds_ddp = slope / vol1
+        else:
+            b2 = loaded
+            ds_ddp = -slope / vol2
+    q, dq = orifice_flow_and_slope(dp, fl[0], fl[1], fl[2], fl[3])
+    if not math.isfinite(dq):  # purely quadratic orifice at Δp = 0: use the slope at |Δp| = atol
+        dq = orifice_flow_and_slope(atol, fl[0], fl[1], fl[2], fl[3])[1]
+    s = b1 / vol1 + b2 / vol2
+    r = area * vel - q
+    ds_dt = area * vel * (b1 / (vol1 * vol1) - b2 / (vol2 * vol2))
+    return s * r, ds_ddp * r - s * dq, ds_dt * r
+
+
+@njit(cache=True)
+def _pos(x):
+    return math.isfinite(x) and x > 0.0
+
+
+@njit(cache=True)
+def _inputs_valid(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
+                  b_const, rtol, atol):
+    n_k = knot_t.shape[0]
+    if n_k < 2 or knot_y.shape[0] != n_k or fl.shape[0] != 4:
+        return False
+    for k in range(n_k):
+        ok = math.isfinite(knot_t[k]) and math.isfinite(knot_y[k])
+        if not ok or (k > 0 and not knot_t[k] > knot_t[k - 1]):
+            return False
+    for i in range(t_out.shape[0]):
+        if not math.isfinite(t_out[i]) or (i > 0 and t_out[i] < t_out[i - 1]):
+            return False
+    if t_out[0] < knot_t[0] or t_out[t_out.shape[0] - 1] > knot_t[n_k - 1]:
+        return False
+    if not (_pos(area) and _pos(v01) and _pos(v02) and _pos(rtol) and _pos(atol) and rtol < 1.0
+            and math.isfinite(dp0) and fl[0] + fl[1] > 0.0 and fl[2] + fl[3] > 0.0):
+        return False
+    for j in range(4):
+        if not (math.isfinite(fl[j]) and fl[j] >= 0.0):
+            return False
+    if bulk_mode == 0:
+        return _pos(b0) and _pos(alpha_v) and _pos(p_r)
+    return bulk_mode == 1 and _pos(b_const)
+
+
+@njit(cache=True)
+def _initial_step(t, x, f0, tb, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
+                  b_base, rtol, atol):
+    """Hairer-Wanner initial step heuristic (one extra F evaluation) [s]."""
+    sc = atol + rtol * abs(x)
+    d0, d1, span = abs(x) / sc, abs(f0) / sc, tb - t
+    h0 = min(span, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
+    f1 = _rhs(t + h0, x + h0 * f0, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+    d2 = abs(f1 - f0) / sc / h0
+    dmax = max(d1, d2)
+    if not math.isfinite(dmax):
+        return h0
+    h1 = max(1e-6, h0 * 1e-3) if dmax <= 1e-15 else (0.01 / dmax) ** 0.2
+    return min(100.0 * h0, h1, span)
+
+
+# ----------------------------------------------------------------------------- public kernel
+@njit(cache=True)
+def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
+                       bulk_mode, b_const, rtol, atol):
+    """Solve eq. (7) at the sample times: the compiled hot path (RODAS4, see the module docstring).
+
+    The transient starts at ``knot_t[0]`` (the velocity step) with Δp = ``dp0``.
+
+    Parameters
+    ----------
+    t_out : ndarray, shape (n_t,)
+        Non-decreasing output times [s] within ``[knot_t[0], knot_t[-1]]``.
+    knot_t, knot_y : ndarray, shape (n_knots,)
+        Strictly increasing knot times [s] and piston displacement y_P there [m].
+    dp0 : float
+        Δp at ``knot_t[0]`` [Pa].
+    area, v01, v02 : float
+        Piston area A_P [m^2]; chamber volumes V_{0,1}, V_{0,2} at y_P = 0 [m^3].
+    b0, alpha_v, p_r : float
+        Liquid bulk modulus B_0 [Pa], liquid-gas ratio α_V [-], reference pressure p_R [Pa] of
+        eq. (6) (bulk_mode 0; ignored for bulk_mode 1).
+    flow4 : ndarray, shape (4,)
+        ``[C_L12, C_Q12, C_L21, C_Q21]`` ([kg m^-4 s^-1], [kg m^-7]) of eq. (8).
+    bulk_mode : int
+        0: eq. (6) pressure-difference bulk moduli; 1: constant ``b_const`` [Pa] in both chambers.
+    b_const : float
+        Constant bulk modulus [Pa] (bulk_mode 1; ignored otherwise).
+    rtol, atol : float
+        Relative [-] and absolute [Pa] tolerance of the local error.
+
+    Returns
+    -------
+    dp : ndarray, shape (n_t,)
+        Δp at ``t_out`` [Pa]; finite when status is 0, unspecified otherwise.
+    status : int
+        0 on success; see ``STATUS_MESSAGES``.
+    n_rhs : int
+        Number of evaluations of the right-hand side (each Jacobian evaluation counts one).
+    """
+    n_t = t_out.shape[0]
+    out = np.full(n_t, np.nan)
+    if n_t == 0:
+        return out, STATUS_OK, 0
+    if not _inputs_valid(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
+                         bulk_mode, b_const, rtol, atol):
+        return out, STATUS_BAD_INPUT, 0
+    fl = flow4
+    n_k = knot_t.shape[0]
+    t_start = knot_t[0]
+    t_end = t_out[n_t - 1]
+    # Chamber volumes must stay positive; y_P is linear between knots so the ends suffice.
+    for k in range(n_k):
+        tk = knot_t[k]
+        yk = knot_y[k]
+        if tk > t_end:
+            yk = knot_y[k - 1] + (knot_y[k] - knot_y[k - 1]) * (t_end - knot_t[k - 1]) / (tk - knot_t[k - 1])
+        if v01 - area * yk <= 0.0 or v02 + area * yk <= 0.0:
+            return out, STATUS_VOLUME, 0
+        if tk >= t_end:
+            break
+    b_base = b_const if bulk_mode == 1 else bulk_modulus_scalar(p_r, b0, alpha_v, p_r)
+
+    i_out = 0
+    while i_out < n_t and t_out[i_out] <= t_start:
+        out[i_out] = dp0
+        i_out += 1
+    x = dp0
+    n_rhs = 0
+    n_steps = 0
+    for k in range(n_k - 1):
+        if i_out >= n_t:
+            break
+        tk = knot_t[k]
+        yk = knot_y[k]
+        vel = (knot_y[k + 1] - yk) / (knot_t[k + 1] - tk)
+        tb = min(knot_t[k + 1], t_end)
+        t = tk
+        f0 = _rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+        h = _initial_step(t, x, f0, tb, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+                          bulk_mode, b_base, rtol, atol)
+        n_rhs += 2
+        n_acc_seg = 0
+        h_acc = 0.0
+        err_acc = 1.0
+        reject = False
+        while t < tb:
+            if n_steps >= MAX_STEPS:
+                return out, STATUS_MAX_STEPS, n_rhs
+            last = False
+            if t + 1.0001 * h >= tb:
+                h = tb - t
+                last = True
+            f0, jac, ft = _rhs_jac(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+                                   bulk_mode, b_base, atol)
+            n_rhs += 1
+            if not (math.isfinite(f0) and math.isfinite(jac) and math.isfinite(ft)):
+                return out, STATUS_NONFINITE, n_rhs
+            while True:  # attempts from (t, x)
+                if h <= 1e-14 * max(1.0, abs(t)):
+                    return out, STATUS_STEP_UNDERFLOW, n_rhs
+                e = 1.0 / (h * _GAMMA) - jac
+                if e == 0.0:
+                    h *= 0.5
+                    last = False
+                    continue
+                inv = 1.0 / e
+                k1 = (f0 + h * _D1 * ft) * inv
+                f = _rhs(t + _C2 * h, x + _A21 * k1, tk, yk, vel, area, v01, v02, b0, fl, alpha_v,
+                         p_r, bulk_mode, b_base)
+                k2 = (f + h * _D2 * ft + (_C21 * k1) / h) * inv
+                f = _rhs(t + _C3 * h, x + _A31 * k1 + _A32 * k2, tk, yk, vel, area, v01, v02, b0, fl,
+                         alpha_v, p_r, bulk_mode, b_base)
+                k3 = (f + h * _D3 * ft + (_C31 * k1 + _C32 * k2) / h) * inv
+                f = _rhs(t + _C4 * h, x + _A41 * k1 + _A42 * k2 + _A43 * k3, tk, yk, vel, area, v01,
+                         v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k4 = (f + h * _D4 * ft + (_C41 * k1 + _C42 * k2 + _C43 * k3) / h) * inv
+                xs = x + _A51 * k1 + _A52 * k2 + _A53 * k3 + _A54 * k4
+                f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k5 = (f + (_C51 * k1 + _C52 * k2 + _C53 * k3 + _C54 * k4) / h) * inv
+                xs += k5
+                f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k6 = (f + (_C61 * k1 + _C62 * k2 + _C63 * k3 + _C64 * k4 + _C65 * k5) / h) * inv
+                x_new = xs + k6
+                n_rhs += 5
+                err = abs(k6) / (atol + rtol * max(abs(x), abs(x_new)))
+                if not (math.isfinite(x_new) and math.isfinite(err)):
+                    h *= 0.2
+                    last = False
+                    reject = True
+                    continue
+                fac = step_factor(err)
+                h_new = h / fac
+                if err > 1.0:
+                    reject = True
+                    last = False
+                    h = h_new
+                    continue
+                # accepted step
+                n_steps += 1
+                n_acc_seg += 1
+                if n_acc_seg > 1:
+                    h_new = predictive_step(h, fac, err, h_acc, err_acc)
+                h_acc = h
+                err_acc = max(0.01, err)
+                t_new = tb if last else t + h
+                # dense output of rodas.f (order 3) on [t, t_new]
+                cd3 = _E21 * k1 + _E22 * k2 + _E23 * k3 + _E24 * k4 + _E25 * k5
+                cd4 = _E31 * k1 + _E32 * k2 + _E33 * k3 + _E34 * k4 + _E35 * k5
+                while i_out < n_t and t_out[i_out] <= t_new:
+                    s = (t_out[i_out] - t) / h
+                    out[i_out] = x * (1.0 - s) + s * (x_new + (1.0 - s) * (cd3 + s * cd4))
+                    i_out += 1
+                x = x_new
+                t = t_new
+                if reject:
+                    h_new = min(h_new, h)
+                reject = False
+                h = h_new
+                break
+    for i in range(n_t):
+        if not math.isfinite(out[i]):
+            return out, STATUS_NONFINITE, n_rhs
+    return out, STATUS_OK, n_rhs
+
+
+@njit(cache=True)
+def solve_single_state_batch(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
+                             bulk_mode, b_const, rtol, atol):
+    """:func:`solve_single_state` for many (α_V, p_R) pairs on one excitation (a plain loop).
+
+    Parameters are those of :func:`solve_single_state` except ``alpha_v`` and ``p_r``:
+    ndarray, shape (n,), liquid-gas ratios [-] and reference pressures [Pa].
+
+    Returns
+    -------
+    dp : ndarray, shape (n, n_t)
+        Δp at ``t_out`` [Pa] per parameter pair.
+    status : ndarray of int64, shape (n,)
+        Kernel status per pair (0 = success).
+    """
+    n = alpha_v.shape[0]
+    dp = np.empty((n, t_out.shape[0]))
+    status = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        row, st, _ = solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4,
+                                        alpha_v[i], p_r[i], bulk_mode, b_const, rtol, atol)
+        dp[i] = row
+        status[i] = st
+    return dp, status
+
+
+# ----------------------------------------------------------------------------- Python wrappers
+def _prepare(t_out, excitation: PiecewiseLinear, t0: float | None) -> tuple[np.ndarray, PiecewiseLinear]:
+    t_out = np.ascontiguousarray(t_out, dtype=float)
+    if t_out.ndim != 1 or t_out.size == 0 or not np.all(np.isfinite(t_out)):
+        raise SettingsError("output times must be a non-empty 1-D array of finite numbers")
+    if np.any(np.diff(t_out) < 0):
+        raise SettingsError("output times must be non-decreasing")
+    t0 = float(t_out[0]) if t0 is None else float(t0)
+    if t_out[0] < t0:
+        raise SettingsError(f"output times start at {t_out[0]!r} s, before the transient start t0={t0!r} s")
+    t1 = float(t_out[-1]) if t_out[-1] > t0 else t0 + 1.0
+    return t_out, excitation.window(t0, t1)
+
+
+def _solve_ivp_segments(rhs, x0, t_out, window: PiecewiseLinear, what: str, **kw) -> np.ndarray:
+    """``solve_ivp`` knot segment by knot segment (knots are breakpoints): states at ``t_out``.
+
+    ``rhs(t, x, t_k, y_k, v_k)`` gets the segment's start time [s], displacement [m] and velocity
+    [m s^-1]. Returns an array of shape (n_states, n_t).
+    """
+    x = np.atleast_1d(np.asarray(x0, dtype=float))
+    out = np.full((x.size, t_out.size), np.nan)
+    out[:, t_out <= window.start] = x[:, None]
+    kt, ky = window.knot_times, window.knot_displacements
+    for k in range(kt.size - 1):
+        ta, tb = kt[k], min(kt[k + 1], t_out[-1])
+        if ta >= t_out[-1]:
+            break
+        sel = (t_out > ta) & (t_out <= tb)
+        t_eval = t_out[sel]
+        n_sel = t_eval.size
+        if n_sel == 0 or t_eval[-1] < tb:
+            t_eval = np.append(t_eval, tb)
+        vel = (ky[k + 1] - ky[k]) / (kt[k + 1] - ta)
+        sol = solve_ivp(rhs, (ta, tb), x, t_eval=t_eval, args=(ta, ky[k], vel), **kw)
+        if sol.status != 0:
+            raise BayesDamperError(f"{what} solve failed: {sol.message}")
+        out[:, sel] = sol.y[:, :n_sel]
+        x = sol.y[:, -1]
+    return out
+
+
+def simulate_single_state(
+    t_out: np.ndarray,
+    excitation: PiecewiseLinear,
+    damper: DamperConstants,
+    flow: FlowCoefficients,
+    dynamic: DynamicParameters | None,
+    *,
+    dp0: float = 0.0,
+    t0: float | None = None,
+    constant_bulk_modulus: float | None = None,
+    rtol: float = DEFAULT_RTOL,
+    atol: float = DEFAULT_ATOL,
+) -> np.ndarray:
+    """Pressure difference of the single-state model eq. (7) at the sample times.
+
+    Parameters
+    ----------
+    t_out : ndarray, shape (n_t,)
+        Non-decreasing sample times [s], all >= ``t0``.
+    excitation : PiecewiseLinear
+        Piston displacement y_P(t) [m].
+    damper : DamperConstants
+        A_P [m^2], V_{0,1}, V_{0,2} [m^3], B_0 [Pa].
+    flow : FlowCoefficients
+        Eq. (4)/(8) coefficients per direction.
+    dynamic : DynamicParameters or None
+        α_V [-] and p_R [Pa] of eq. (6); may be None when ``constant_bulk_modulus`` is given.
+    dp0 : float
+        Δp at ``t0`` [Pa].
+    t0 : float, optional
+        Start of the transient [s] (the velocity step); default ``t_out[0]``.
+    constant_bulk_modulus : float, optional
+        If given, both chambers use this constant bulk modulus [Pa] instead of eq. (6) (baseline).
+    rtol, atol : float
+        Relative [-] and absolute [Pa] tolerance of the kernel.
+
+    Returns
+    -------
+    ndarray, shape (n_t,)
+        Δp = p_1 - p_2 at ``t_out`` [Pa]; damper force is A_P Δp.
+
+    Raises
+    ------
+    BayesDamperError
+        If the solve fails (message is one line naming the reason and the parameters).
+    """
+    t_out, window = _prepare(t_out, excitation, t0)
+    if constant_bulk_modulus is None:
+        if dynamic is None:
+            raise SettingsError("single-state model needs DynamicParameters or a constant bulk modulus")
+        mode, b_const, alpha_v, p_r = 0, 0.0, dynamic.liquid_gas_ratio, dynamic.reference_pressure
+    else:
+        mode, b_const, alpha_v, p_r = 1, float(constant_bulk_modulus), 1.0, 1.0
+    knot_t, knot_y = np.array(window.knot_times), np.array(window.knot_displacements)  # writable:
+    dp, status, _ = solve_single_state(  # one compiled signature shared with direct kernel callers
+        t_out, knot_t, knot_y, float(dp0), damper.piston_area,
+        damper.chamber_volume_1, damper.chamber_volume_2, damper.liquid_bulk_modulus, flow.as_array(),
+        float(alpha_v), float(p_r), mode, b_const, float(rtol), float(atol),
+    )
+    if status != STATUS_OK:
+        what = f"B={b_const!r} Pa" if mode == 1 else f"alpha_V={alpha_v!r}, p_R={p_r!r} Pa"
+        raise BayesDamperError(f"single-state solve failed ({what}): {STATUS_MESSAGES[int(status)]}")
+    return dp
+
+
+def _python_rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, b_const):
+    """Plain-Python eq. (7) right-hand side, written independently of the kernel [Pa s^-1]."""
+    dp = x[0]
+    yp = yk + vel * (t - tk)
+    if b_const is None:
+        p_hi = p_r + abs(dp)
+        b_hi = b0 * (1.0 + alpha_v) / (alpha_v + b0 * p_r / (p_hi * p_hi))
+        b_lo = b0 * (1.0 + alpha_v) / (alpha_v + b0 / p_r)
+        b1, b2 = (b_hi, b_lo) if dp >= 0 else (b_lo, b_hi)
+    else:
+        b1 = b2 = b_const
+    c_l, c_q = (fl[0], fl[1]) if dp >= 0 else (fl[2], fl[3])
+    if c_q > 0:
+        q = math.copysign((-c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) / (2.0 * c_q), dp)
+    else:
+        q = dp / c_l
+    return [(b1 / (v01 - area * yp) + b2 / (v02 + area * yp)) * (area * vel - q)]
+
+
+def reference_single_state(
+    t_out: np.ndarray,
+    excitation: PiecewiseLinear,
+    damper: DamperConstants,
+    flow: FlowCoefficients,
+    dynamic: DynamicParameters | None,
+    *,
+    dp0: float = 0.0,
+    t0: float | None = None,
+    constant_bulk_modulus: float | None = None,
+    method: str = "Radau",
+    rtol: float = 1e-10,
+    atol: float = 1e-6,
+) -> np.ndarray:
+    """Eq. (7) by ``scipy.integrate.solve_ivp``: the slow independent reference.
+
+    Same arguments and time convention as :func:`simulate_single_state`; integrates knot segment by
+    knot segment (knots are breakpoints), eq. (8) in the paper's textbook form. ``method``,
+    ``rtol`` [-] and ``atol`` [Pa] go to ``solve_ivp``.
+
+    Returns
+    -------
+    ndarray, shape (n_t,)
+        Δp at ``t_out`` [Pa].
+    """
+    t_out, window = _prepare(t_out, excitation, t0)
+    if constant_bulk_modulus is None and dynamic is None:
+        raise SettingsError("single-state model needs DynamicParameters or a constant bulk modulus")
+    d = damper
+    alpha_v = dynamic.liquid_gas_ratio if dynamic is not None else 1.0
+    p_r = dynamic.reference_pressure if dynamic is not None else 1.0
+    consts = (d.piston_area, d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus,
+              flow.as_array().tolist(), alpha_v, p_r, constant_bulk_modulus)
+
+    def rhs(t, x, tk, yk, vel):
+        return _python_rhs(t, x, tk, yk, vel, *consts)
+
+    return _solve_ivp_segments(rhs, dp0, t_out, window, "reference single-state", method=method,
+                               rtol=rtol, atol=atol)[0]
+
+
+# ----------------------------------------------------------------------------- two-state reference
+@dataclass(frozen=True)
+class TwoStateSolution:
+    """Solution of the two-state model eq. (1) at the sample times.
+
+    Attributes
+    ----------
+    dp : ndarray, shape (n_t,)
+        Pressure difference Δp = p_1 - p_2 [Pa].
+    p1, p2 : ndarray, shape (n_t,)
+        Absolute pressures of CH1 and CH2 [Pa].
+    """
+
+    dp: np.ndarray
+    p1: np.ndarray
+    p2: np.ndarray
+
+
+def simulate_two_state(
+    t_out: np.ndarray,
+    excitation: PiecewiseLinear,
+    damper: DamperConstants,
+    flow: FlowCoefficients,
+    dynamic: DynamicParameters,
+    *,
+    dp0: float = 0.0,
+    t0: float | None = None,
+    accumulator_conductance: float = 1e-8,
+    rtol: float = 1e-8,
+    atol: float = 1e-3,
+) -> TwoStateSolution:
+    """Two-state reference model eq. (1) with an optional accumulator, by scipy ``Radau``.
+
+    ``dp_i/dt = (B(p_i)/V_i) (±(A_P dy_P/dt - Q_O) + Q_A,i)`` with B from eq. (3) (reference
+    pressure p_R, ratio α_V; written as ``B_0 (1+α_V) p^2 / (α_V p^2 + B_0 p_R)``, finite at p = 0),
+    Q_O from eq. (8) and the accumulator refill ``Q_A,i = G max(p_R - p_i, 0)`` through a check
+    valve of conductance G. The pressures start at ``p_1 = p_R + max(dp0, 0)``,
+    ``p_2 = p_R + max(-dp0, 0)`` (loaded chamber above p_R, the other at p_R, as eq. (6) assumes).
+
+    Parameters
+    ----------
+    t_out, excitation, damper, flow, dp0, t0
+        As for :func:`simulate_single_state`.
+    dynamic : DynamicParameters
+        α_V [-] and p_R [Pa]; p_R is also the accumulator pressure.
+    accumulator_conductance : float
+        Check-valve conductance G [m^3 s^-1 Pa^-1]; 0 disables the accumulator (pure eq. (1)).
+    rtol, atol : float
+        Relative [-] and absolute [Pa] tolerance of ``solve_ivp``.
+
+    Returns
+    -------
+    TwoStateSolution
+    """
+    if not (np.isfinite(accumulator_conductance) and accumulator_conductance >= 0):
+        raise SettingsError(f"accumulator conductance must be finite and >= 0, got {accumulator_conductance}")
+    t_out, window = _prepare(t_out, excitation, t0)
+    area, v01, v02 = damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2
+    b0, alpha_v, p_r = damper.liquid_bulk_modulus, dynamic.liquid_gas_ratio, dynamic.reference_pressure
+    g = float(accumulator_conductance)
+    fl = flow.as_array().tolist()
+
+    def bulk(p):
+        return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
+
+    def rhs(t, x, tk, yk, vel):
+        p1, p2 = x
+        yp = yk + vel * (t - tk)
+        dp = p1 - p2
+        c_l, c_q = (fl[0], fl[1]) if dp >= 0 else (fl[2], fl[3])
+        q = 2.0 * dp / (c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) if dp else 0.0
+        net = area * vel - q
+        return [bulk(p1) / (v01 - area * yp) * (net + g * max(p_r - p1, 0.0)),
+                bulk(p2) / (v02 + area * yp) * (-net + g * max(p_r - p2, 0.0))]
+
+    y_knots = window.knot_displacements  # ends at t_out[-1]; y_P is linear in between
+    if np.any(v01 - area * y_knots <= 0) or np.any(v02 + area * y_knots <= 0):
+        raise BayesDamperError("two-state solve failed: a chamber volume is <= 0 on the excitation")
+    x0 = [p_r + max(dp0, 0.0), p_r + max(-dp0, 0.0)]
+    out = _solve_ivp_segments(rhs, x0, t_out, window, "two-state", method="Radau", rtol=rtol, atol=atol)
+    return TwoStateSolution(dp=out[0] - out[1], p1=out[0], p2=out[1])
