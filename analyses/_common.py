@@ -11,10 +11,10 @@ import os
 import time
 from pathlib import Path
 
+import bayesdamper as bd
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
-from bayesdamper.io.segmentation import Transient
-from bayesdamper.run import workflows
+from bayesdamper.io.segments import Transient
 
 #: Repository root (this file lives in ``<root>/analyses``).
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,19 +82,19 @@ def identify_results(data_dir: Path, *, seed: int, max_steps: int | None, only: 
         ``(dataset, static_fit, results, summary)`` with ``summary`` holding ``segments``, ``drift``,
         ``credible_mass``, ``settings`` and ``seed`` like ``summary.json``.
     """
-    ds, _, transients, static = workflows.prepare(data_dir, TMAX)
+    ds, _, transients, static = bd.prepare(data_dir, TMAX)
     transients = select(transients, only)
     sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
     settings = StageTwoSettings(credible_mass=credible_mass, sampler=sampler)
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     t0 = time.perf_counter()
-    results: list[TransientResult] = workflows.identify_all(
+    results: list[TransientResult] = bd.identify_all(
         transients, ds.damper, static.coefficients, settings, seed, workers, None, {},
-        workflows.Progress(False))
+        bd.Progress(False))
     entries = [r.entry for r in results]
     summary = {
         "dataset": ds.name, "credible_mass": credible_mass, "segments": entries,
-        "drift": workflows.drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
+        "drift": bd.drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "stage2_wall_s": time.perf_counter() - t0,
     }
     return ds, static, results, summary

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bayesdamper.diagnosis.loop import run_diagnosis
+from bayesdamper.run.diagnose import run_diagnosis
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,9 +12,9 @@ import time
 
 from _common import TMAX, parser
 
+import bayesdamper as bd
 from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
-from bayesdamper.report import plots
-from bayesdamper.run import workflows
+from bayesdamper.report import paper_figures
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -22,9 +22,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--credible-mass", type=float, default=0.9, help="mass of the intervals (default 0.9)")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    ds, _, _, static = workflows.prepare(args.data, TMAX)
+    ds, _, _, static = bd.prepare(args.data, TMAX)
     args.out.mkdir(parents=True, exist_ok=True)
-    fig = plots.figure3_static(static, title=f"data set {ds.name!r}")
+    fig = paper_figures.figure3_static(static, title=f"data set {ds.name!r}")
     paths = save_figure(fig, args.out / "figure3_static")
     directions = {}
     for fit, tag in ((static.forward, "12"), (static.backward, "21")):

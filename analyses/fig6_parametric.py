@@ -14,7 +14,7 @@ import numpy as np
 from _common import parser
 
 from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
-from bayesdamper.report import plots
+from bayesdamper.report import paper_figures
 
 #: Output times of the full and the quick figure over the 3 s window.
 N_TIMES, N_TIMES_QUICK = 601, 61
@@ -26,9 +26,9 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     del args.seed  # deterministic: no random numbers involved
     t0 = time.perf_counter()
-    curves = plots.parametric_curves(args.velocity * 1e-3, n_times=N_TIMES_QUICK if args.quick else N_TIMES)
+    curves = paper_figures.parametric_curves(args.velocity * 1e-3, n_times=N_TIMES_QUICK if args.quick else N_TIMES)
     args.out.mkdir(parents=True, exist_ok=True)
-    paths = save_figure(plots.figure6_parametric(curves=curves), args.out / "figure6_parametric")
+    paths = save_figure(paper_figures.figure6_parametric(curves=curves), args.out / "figure6_parametric")
     as_list = {
         "time_s": np.asarray(curves["time_s"]).tolist(),
         "steady_force_N": curves["steady_force_N"],

@@ -14,7 +14,7 @@ import time
 from _common import add_sampling_arguments, identify_results, parser, sampling_choice
 
 from bayesdamper.io.outputs import atomic_write_json, save_figure, versions
-from bayesdamper.report import plots
+from bayesdamper.report import paper_figures
 
 #: Transients per page.
 PANELS = 12
@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> None:
     written = []
     for k in range(n_pages):
         title = f"data set {ds.name!r}" + (f", page {k + 1} of {n_pages}" if n_pages > 1 else "")
-        fig = plots.figure8_transients(results[k * PANELS:(k + 1) * PANELS], PANELS,
+        fig = paper_figures.figure8_transients(results[k * PANELS:(k + 1) * PANELS], PANELS,
                                        credible_mass=summary["credible_mass"], title=title)
         written += save_figure(fig, args.out / f"figure8_transients_p{k + 1}")
     summary.update(quick=args.quick, versions=versions())

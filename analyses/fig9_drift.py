@@ -1,6 +1,6 @@
 """Figure 9: identified p_R and 100/α_V of rig-A against piston speed, with the drift trend.
 
-Runs the ``identify`` workflow (:func:`bayesdamper.run.workflows.run_identify`, figures off) into
+Runs the ``identify`` workflow (:func:`bayesdamper.run.identify.run_identify`, figures off) into
 ``<out>/identify/`` (its ``summary.json`` and posteriors), then draws ``figure9_drift.{png,pdf}`` from the
 summary and writes ``drift.json`` to ``results/analyses/fig9_drift/``. ``--quick``: six transients and a
 short step budget (not converged; exercises the same code).
@@ -12,9 +12,9 @@ import time
 
 from _common import add_sampling_arguments, parser, sampling_choice
 
+import bayesdamper as bd
 from bayesdamper.io.outputs import atomic_write_json, save_figure
-from bayesdamper.report import plots
-from bayesdamper.run import workflows
+from bayesdamper.report import paper_figures
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -23,10 +23,10 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     max_steps, only = sampling_choice(args)
     t0 = time.perf_counter()
-    summary = workflows.run_identify(str(args.data), str(args.out / "identify"), seed=args.seed,
+    summary = bd.run_identify(str(args.data), str(args.out / "identify"), seed=args.seed,
                                      workers=args.workers, max_steps=max_steps, only=only, figures=False,
                                      force=True)  # the identify folder is this script's scratch space
-    fig = plots.figure9_drift(summary["segments"], summary["drift"] or None, summary["credible_mass"],
+    fig = paper_figures.figure9_drift(summary["segments"], summary["drift"] or None, summary["credible_mass"],
                               title=f"data set {summary['dataset']!r}")
     paths = save_figure(fig, args.out / "figure9_drift")
     atomic_write_json(args.out / "drift.json", {"dataset": summary["dataset"], "quick": args.quick,

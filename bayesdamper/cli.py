@@ -95,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "check":
-            from bayesdamper.run.workflows import run_check
+            from bayesdamper.run.check import run_check
 
             run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit)
         elif args.command == "simulate":
@@ -107,14 +107,15 @@ def main(argv: list[str] | None = None) -> int:
                          sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
                          effects=parse_effect_specs(args.effect))
         elif args.command == "diagnose":
-            from bayesdamper.diagnosis.loop import run_diagnosis
+            from bayesdamper.run.diagnose import run_diagnosis
 
             run_diagnosis(args.data_dir, args.out, seed=args.seed,
                           effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
                           workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
                           max_steps=args.max_steps, figures=not args.no_figures)
         elif args.command in ("identify", "report"):
-            from bayesdamper.run.workflows import run_identify, run_report
+            from bayesdamper.run.identify import run_identify
+            from bayesdamper.run.report import run_report
 
             run = run_identify if args.command == "identify" else run_report
             run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,

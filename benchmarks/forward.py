@@ -9,7 +9,7 @@ Measured:
   * the kernel's µs per solve at its default tolerances (after a warm-up compile; median of
     sweeps over all problems), and at looser rtol for reference,
   * ``scipy.integrate.solve_ivp(method="LSODA", rtol=1e-8)`` µs per solve (plain-Python right-hand
-    side, knots as breakpoints: :func:`bayesdamper.physics.model.reference_single_state`),
+    side, knots as breakpoints: :func:`bayesdamper.physics.reference.reference_single_state`),
   * the worst relative L2 error of the kernel against ``Radau`` at ``rtol=1e-11``, ``atol=1e-9`` Pa.
 
 Usage: ``python benchmarks/forward.py [--json] [--quick]``. With ``--json`` the last line is
@@ -26,8 +26,10 @@ import time
 import numpy as np
 
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.physics.model import DEFAULT_ATOL, DEFAULT_RTOL, reference_single_state, solve_single_state
 from bayesdamper.physics.orifice import pressure_drop
+from bayesdamper.physics.reference import reference_single_state
+from bayesdamper.physics.rodas import DEFAULT_ATOL, DEFAULT_RTOL
+from bayesdamper.physics.single_state import solve_single_state
 
 SAMPLE_RATE = 250.0  # [Hz]
 WINDOW = 3.0  # [s]

@@ -13,14 +13,18 @@ from scipy.integrate import solve_ivp
 
 from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.physics import augmented as aug
+from bayesdamper.physics.augmented import solve_augmented
+from bayesdamper.physics.effect_vector import EFFECT_SLOTS, pack_effects
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.effects.friction import SIGN_VELOCITY_M_S
 from bayesdamper.physics.effects.inertia import CORNER_TIME_S
 from bayesdamper.physics.effects.valve_dynamics import MIN_OPENING
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import simulate_two_state, solve_single_state
 from bayesdamper.physics.orifice import pressure_drop
+from bayesdamper.physics.reference import simulate_two_state
+from bayesdamper.physics.rodas import STATUS_BAD_INPUT, STATUS_VOLUME
+from bayesdamper.physics.single_state import solve_single_state
+from bayesdamper.physics.with_effects import AugmentedProblem, simulate_augmented, simulate_two_state_augmented
 
 D = RIG_A_DAMPER
 AREA = D.piston_area
@@ -42,7 +46,7 @@ def rel_l2(a, b):
 def reference_force(t_out, kt, ky, t0, dp0, v_prev, eff, alpha_v=DYN.liquid_gas_ratio,
                     p_r=DYN.reference_pressure):
     """Radau solution of the augmented single-state model; states (Δp, x, y_A - y_D, v_f)."""
-    e = dict(zip(aug.EFFECT_SLOTS, map(float, eff), strict=True))
+    e = dict(zip(EFFECT_SLOTS, map(float, eff), strict=True))
     comp, tau_a, tau_v, p_v, mass = e["compliance"], e["lag_tau"], e["valve_tau"], e["valve_p"], e["mass"]
     fl = PAPER_FLOW.as_array()
     b0 = D.liquid_bulk_modulus
@@ -104,7 +108,7 @@ def reference_force(t_out, kt, ky, t0, dp0, v_prev, eff, alpha_v=DYN.liquid_gas_
 
 def kernel_force(t_out, kt, ky, t0, dp0, v_prev, eff, rtol=1e-7, atol=1e-3, alpha_v=DYN.liquid_gas_ratio,
                  p_r=DYN.reference_pressure):
-    f, st = aug.solve_augmented(t_out, kt, ky, t0, dp0, v_prev, AREA, D.chamber_volume_1, D.chamber_volume_2,
+    f, st = solve_augmented(t_out, kt, ky, t0, dp0, v_prev, AREA, D.chamber_volume_1, D.chamber_volume_2,
                                 D.liquid_bulk_modulus, PAPER_FLOW.as_array(), alpha_v, p_r, eff, rtol, atol)
     return f, st
 
@@ -135,7 +139,7 @@ def test_all_off_equals_eq7_kernel(case):
     k = int(np.searchsorted(kt, t0))  # window the knots for the eq. (7) kernel, which starts at knot 0
     wt = np.concatenate(([t0], kt[k:]))
     wy = np.interp(wt, kt, ky)
-    f, st = kernel_force(t, kt, ky, t0, dp0, v_prev, np.zeros(len(aug.EFFECT_SLOTS)), 1e-6, 1e-2)
+    f, st = kernel_force(t, kt, ky, t0, dp0, v_prev, np.zeros(len(EFFECT_SLOTS)), 1e-6, 1e-2)
     dp, st7, _ = solve_single_state(t, wt, wy, dp0, AREA, D.chamber_volume_1, D.chamber_volume_2,
                                     D.liquid_bulk_modulus, PAPER_FLOW.as_array(), DYN.liquid_gas_ratio,
                                     DYN.reference_pressure, 0, 0.0, 1e-6, 1e-2)
@@ -159,7 +163,7 @@ REF_CASES += [("all", c) for c in CASES]
 def test_kernel_matches_radau_reference(combo, case):
     """Each effect alone from rest and across a reversal, and all together in all four cases."""
     t, kt, ky, t0, dp0, v_prev = window_case(*case, rate=50.0)  # the Python reference is slow per sample
-    eff = aug.pack_effects(ALL if combo == "all" else COMBOS[combo])
+    eff = pack_effects(ALL if combo == "all" else COMBOS[combo])
     f, st = kernel_force(t, kt, ky, t0, dp0, v_prev, eff)
     assert st == 0 and np.all(np.isfinite(f))
     ref = reference_force(t, kt, ky, t0, dp0, v_prev, eff)
@@ -179,30 +183,30 @@ def test_random_prior_draws_succeed_and_are_finite():
                 eff[name] = {p.name: float(np.exp(rng.uniform(np.log(p.lower), np.log(p.upper))))
                              for p in e.params}
         a, p = np.exp(rng.uniform(np.log(2.0), np.log(5000.0))), np.exp(rng.uniform(np.log(1e3), np.log(1e7)))
-        f, st = kernel_force(t, kt, ky, t0, dp0, v_prev, aug.pack_effects(eff), 1e-6, 1.0, alpha_v=a, p_r=p)
+        f, st = kernel_force(t, kt, ky, t0, dp0, v_prev, pack_effects(eff), 1e-6, 1.0, alpha_v=a, p_r=p)
         n_fail += st != 0
         assert st != 0 or np.all(np.isfinite(f))
     assert n_fail == 0
 
 
 @pytest.mark.parametrize("change,status", [
-    (dict(t0=4.7), aug.STATUS_BAD_INPUT),  # samples before t0
-    (dict(eff_slot=("mass", -1.0)), aug.STATUS_BAD_INPUT),
-    (dict(eff_slot=("valve_tau", math.nan)), aug.STATUS_BAD_INPUT),
-    (dict(dp0=math.inf), aug.STATUS_BAD_INPUT),
-    (dict(p_r=0.0), aug.STATUS_BAD_INPUT),
-    (dict(ky_scale=1e3), aug.STATUS_VOLUME),  # a 5 m stroke empties a chamber
+    (dict(t0=4.7), STATUS_BAD_INPUT),  # samples before t0
+    (dict(eff_slot=("mass", -1.0)), STATUS_BAD_INPUT),
+    (dict(eff_slot=("valve_tau", math.nan)), STATUS_BAD_INPUT),
+    (dict(dp0=math.inf), STATUS_BAD_INPUT),
+    (dict(p_r=0.0), STATUS_BAD_INPUT),
+    (dict(ky_scale=1e3), STATUS_VOLUME),  # a 5 m stroke empties a chamber
     (dict(rtol=1e-15, atol=1e-15), None),  # impossible tolerance: fails cleanly, whatever the reason
 ])
 def test_impossible_inputs_give_status_not_nan(change, status):
     t, kt, ky, t0, dp0, v_prev = window_case(1, True)
-    eff = aug.pack_effects(ALL)
+    eff = pack_effects(ALL)
     if "eff_slot" in change:
         slot, value = change.pop("eff_slot")
-        eff[aug.EFFECT_SLOTS.index(slot)] = value
+        eff[EFFECT_SLOTS.index(slot)] = value
     ky = ky * change.pop("ky_scale", 1.0)
     kw = dict(t0=t0, dp0=dp0, rtol=1e-7, atol=1e-3, p_r=DYN.reference_pressure) | change
-    f, st = aug.solve_augmented(t, kt, ky, kw["t0"], kw["dp0"], v_prev, AREA, D.chamber_volume_1,
+    f, st = solve_augmented(t, kt, ky, kw["t0"], kw["dp0"], v_prev, AREA, D.chamber_volume_1,
                                 D.chamber_volume_2, D.liquid_bulk_modulus, PAPER_FLOW.as_array(),
                                 DYN.liquid_gas_ratio, kw["p_r"], eff, kw["rtol"], kw["atol"])
     if status is None:
@@ -214,10 +218,10 @@ def test_impossible_inputs_give_status_not_nan(change, status):
 def test_wrapper_raises_one_line_error():
     exc = PiecewiseLinear([0.0, 1.0, 2.0], [0.0, 0.0, 1.0])  # 1 m stroke: chamber volume <= 0
     with pytest.raises(BayesDamperError) as err:
-        aug.simulate_augmented(np.linspace(0, 2, 11), exc, D, PAPER_FLOW, DYN, {"friction": {}}, t0=0.0)
+        simulate_augmented(np.linspace(0, 2, 11), exc, D, PAPER_FLOW, DYN, {"friction": {}}, t0=0.0)
     assert "chamber volume" in str(err.value) and "\n" not in str(err.value)
     with pytest.raises(SettingsError):
-        aug.simulate_augmented(np.linspace(0, 2, 11), exc, D, PAPER_FLOW, DYN, {"gravity": {}})
+        simulate_augmented(np.linspace(0, 2, 11), exc, D, PAPER_FLOW, DYN, {"gravity": {}})
 
 
 # ----------------------------------------------------------------------------- problem binding
@@ -236,10 +240,10 @@ def friction_dataset(tmp_path_factory):
 def test_problem_reproduces_simulated_transients(friction_dataset):
     """Noise-free data simulated with effects: the problem with the true effects matches every window."""
     effects, seg = friction_dataset
-    eff = aug.pack_effects(effects)
+    eff = pack_effects(effects)
     assert len(seg.transients) == 3
     for tr in seg.transients:
-        pb = aug.AugmentedProblem.from_segmented(seg, tr, D, PAPER_FLOW)
+        pb = AugmentedProblem.from_segmented(seg, tr, D, PAPER_FLOW)
         f, ok = pb.simulate_force(DYN.liquid_gas_ratio, DYN.reference_pressure, eff)
         assert ok
         # CSV rounding (1e-4 N), segmentation's fitted knots and the step-force average limit this
@@ -247,7 +251,7 @@ def test_problem_reproduces_simulated_transients(friction_dataset):
         f0, ok0 = pb.simulate_force(DYN.liquid_gas_ratio, DYN.reference_pressure, np.zeros(len(eff)))
         assert ok0 and np.max(np.abs(f0 - pb.force)) > 5 * np.max(np.abs(f - pb.force))
         # the step force includes friction: Δp0 = (F_step - F_f(v_before)) / A_P
-        v_before = pb.knots(float(eff[aug.EFFECT_SLOTS.index("gap")]))[2]
+        v_before = pb.knots(float(eff[EFFECT_SLOTS.index("gap")]))[2]
         assert pb.initial_dp(eff, v_before) * AREA == pytest.approx(
             tr.dp0 * AREA - 150.0 * np.sign(v_before) if v_before else tr.dp0 * AREA, abs=1e-6)
         assert not pb.simulate_force(DYN.liquid_gas_ratio, DYN.reference_pressure, -eff - 1)[1]
@@ -256,8 +260,8 @@ def test_problem_reproduces_simulated_transients(friction_dataset):
 def test_problem_without_effects_equals_eq7_on_the_transient(friction_dataset):
     _, seg = friction_dataset
     for tr in seg.transients:
-        pb = aug.AugmentedProblem.from_segmented(seg, tr, D, PAPER_FLOW)
-        f, ok = pb.simulate_force(50.0, 2e5, np.zeros(len(aug.EFFECT_SLOTS)))
+        pb = AugmentedProblem.from_segmented(seg, tr, D, PAPER_FLOW)
+        f, ok = pb.simulate_force(50.0, 2e5, np.zeros(len(EFFECT_SLOTS)))
         # eq. (7) on the transient's own two knots, extended to the last sample (which segmentation may
         # place a rounding error past t_step + tmax)
         kt, ky = tr.knot_times, tr.knot_displacements
@@ -274,17 +278,17 @@ def test_two_state_augmented_off_and_with_effects():
     exc = PiecewiseLinear([0.0, 0.5, 3.0, 5.0], [0.0, 0.0, 2.5e-3, 0.5e-3])
     t = np.arange(0.0, 5.0, 0.01)
     plain = AREA * simulate_two_state(t, exc, D, PAPER_FLOW, DYN, t0=0.0).dp
-    off = aug.simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, None, t0=0.0)
+    off = simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, None, t0=0.0)
     assert np.max(np.abs(off - plain)) < 0.01  # [N], solver tolerance
-    fr = aug.simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, {"friction": {"coulomb_N": 120.0}},
+    fr = simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, {"friction": {"coulomb_N": 120.0}},
                                           t0=0.0)
     v = exc.velocity(t)
     away = np.min(np.abs(t[:, None] - exc.knot_times[None, :]), axis=1) > 0.01
     assert np.allclose((fr - plain)[away], 120.0 * np.sign(v[away]), atol=1e-6)
     # the same effect on the two bases: of similar size (eq. (6) approximates eq. (1))
     both = {"valve_dynamics": {}, "series_compliance": {}, "actuator_lag": {}}
-    d2 = aug.simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, both, t0=0.0) - plain
-    d7 = aug.simulate_augmented(t, exc, D, PAPER_FLOW, DYN, both, t0=0.0) - aug.simulate_augmented(
+    d2 = simulate_two_state_augmented(t, exc, D, PAPER_FLOW, DYN, both, t0=0.0) - plain
+    d7 = simulate_augmented(t, exc, D, PAPER_FLOW, DYN, both, t0=0.0) - simulate_augmented(
         t, exc, D, PAPER_FLOW, DYN, None, t0=0.0)
     assert np.max(np.abs(d2)) == pytest.approx(np.max(np.abs(d7)), rel=0.3)
 

@@ -13,10 +13,10 @@ import pytest
 
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
-from bayesdamper.io.segmentation import Transient
+from bayesdamper.io.segments import Transient
 from bayesdamper.io.synthetic import coloured_noise
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import simulate_single_state
+from bayesdamper.physics.single_state import simulate_single_state
 
 #: Replicates per noise type (the issue asks for at least 40).
 N_REPLICATES = 40

@@ -6,13 +6,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bayesdamper.diagnosis.loop import (
-    SELECT_DELTA_BIC,
-    effective_sizes,
-    plateau_noise,
-    pooled_j,
-    structure_test,
-)
+from bayesdamper.diagnosis.candidates import effective_sizes, pooled_j
+from bayesdamper.diagnosis.loop import SELECT_DELTA_BIC
+from bayesdamper.diagnosis.residual import plateau_noise, structure_test
 
 RATE = 250.0
 NOISE_SD = 20.0
@@ -76,8 +72,8 @@ LOOP_TRUTH = (1000.0, 3.0e5)
 
 def _loop_case(effect: str, tmp_path):
     from bayesdamper.core.params import DynamicParameters
-    from bayesdamper.diagnosis.loop import run_diagnosis
     from bayesdamper.io.synthetic import write_dataset
+    from bayesdamper.run.diagnose import run_diagnosis
 
     data = tmp_path / f"data_{effect}"
     effects = None if effect == "none" else {effect: {}}

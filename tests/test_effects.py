@@ -1,7 +1,7 @@
 """The effect library: registry, parameter specs, the command-line form, and each effect's physics.
 
 Physics is checked on rig A's protocol (rest, then a 5 mm triangle) through
-:func:`bayesdamper.physics.augmented.simulate_augmented` against analytic limits: off values reproduce
+:func:`bayesdamper.physics.with_effects.simulate_augmented` against analytic limits: off values reproduce
 eq. (7); friction and inertia add exactly known forces; backlash, lag, valve and compliance show
 their defining signatures.
 """
@@ -13,7 +13,7 @@ import pytest
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.physics.augmented import EFFECT_SLOTS, pack_effects, simulate_augmented, unpack_effects
+from bayesdamper.physics.effect_vector import EFFECT_SLOTS, pack_effects, unpack_effects
 from bayesdamper.physics.effects import (
     EFFECT_NAMES,
     EFFECTS,
@@ -25,7 +25,8 @@ from bayesdamper.physics.effects import (
 from bayesdamper.physics.effects.backlash import backlash_knots
 from bayesdamper.physics.effects.inertia import CORNER_TIME_S
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import simulate_single_state
+from bayesdamper.physics.single_state import simulate_single_state
+from bayesdamper.physics.with_effects import simulate_augmented
 
 D = RIG_A_DAMPER
 AREA = D.piston_area

@@ -18,7 +18,7 @@ from bayesdamper.inference.likelihood import (
 )
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import simulate_single_state
+from bayesdamper.physics.single_state import simulate_single_state
 
 #: Agreement of two float64 evaluations of the same log density (sums of ~750 terms).
 LOGPDF_RTOL = 1e-9

@@ -13,15 +13,10 @@ from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
 from bayesdamper.physics.compressibility import bulk_modulus
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import (
-    STATUS_MESSAGES,
-    reference_single_state,
-    simulate_single_state,
-    simulate_two_state,
-    solve_single_state,
-    solve_single_state_batch,
-)
 from bayesdamper.physics.orifice import flow_rate, pressure_drop
+from bayesdamper.physics.reference import reference_single_state, simulate_two_state
+from bayesdamper.physics.rodas import STATUS_MESSAGES
+from bayesdamper.physics.single_state import simulate_single_state, solve_single_state, solve_single_state_batch
 
 D = RIG_A_DAMPER
 T = np.arange(751) / 250.0  # the 3 s transient window at 250 Hz [s]

@@ -24,7 +24,8 @@ from bayesdamper import cli
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.core.params import DynamicParameters
 from bayesdamper.io.synthetic import write_dataset
-from bayesdamper.run.workflows import RUN_FILE, run_identify, settings_fingerprint
+from bayesdamper.run.identify import run_identify
+from bayesdamper.run.outfolder import RUN_FILE, settings_fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The transients every run here samples (one initial step, one reversal).

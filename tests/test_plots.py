@@ -13,7 +13,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from bayesdamper.inference.stage1 import StaticFit, fit_direction  # noqa: E402
 from bayesdamper.inference.stage2 import TransientResult  # noqa: E402
-from bayesdamper.report import plots  # noqa: E402
+from bayesdamper.report import diagnostic_plots, paper_figures, style  # noqa: E402
 from bayesdamper.report.figures import write_identify_figures  # noqa: E402
 
 #: Relative tolerance for reading plotted values back (float64 round trip through display scaling).
@@ -75,7 +75,7 @@ def results(entries) -> list[TransientResult]:
 
 
 def test_figure3_curves_pass_through_predict(static_fit):
-    fig = plots.figure3_static(static_fit)
+    fig = paper_figures.figure3_static(static_fit)
     assert isinstance(fig, Figure)
     assert len(fig.axes) == 1
     ax = fig.axes[0]
@@ -84,26 +84,26 @@ def test_figure3_curves_pass_through_predict(static_fit):
     for fit, tag in ((static_fit.forward, "12"), (static_fit.backward, "21")):
         line = lines[f"static-fit-{tag}"]
         x, y = line.get_xydata().T
-        q_pts = fit.flow_rate * plots.FLOW_DISPLAY
+        q_pts = fit.flow_rate * style.FLOW_DISPLAY
         at_pts = np.interp(q_pts, x, y)
-        np.testing.assert_allclose(at_pts, fit.predict(fit.flow_rate) * plots.PRESSURE_DISPLAY,
+        np.testing.assert_allclose(at_pts, fit.predict(fit.flow_rate) * style.PRESSURE_DISPLAY,
                                    rtol=READBACK_RTOL)
         pts = lines[f"plateaus-{tag}"].get_xydata()
-        np.testing.assert_allclose(pts[:, 1], fit.pressure_drop * plots.PRESSURE_DISPLAY, rtol=READBACK_RTOL)
+        np.testing.assert_allclose(pts[:, 1], fit.pressure_drop * style.PRESSURE_DISPLAY, rtol=READBACK_RTOL)
     assert len(ax.collections) == 2  # one ±2 SE band per direction
     for band, fit in zip(ax.collections, (static_fit.forward, static_fit.backward), strict=True):
         verts = band.get_paths()[0].vertices
         for q in fit.flow_rate:
-            ys = verts[np.isclose(verts[:, 0], q * plots.FLOW_DISPLAY, rtol=1e-12, atol=0), 1]
+            ys = verts[np.isclose(verts[:, 0], q * style.FLOW_DISPLAY, rtol=1e-12, atol=0), 1]
             g = np.array([q, q * q])
-            half = plots.STATIC_BAND_SE * np.sqrt(g @ fit.covariance @ g) * plots.PRESSURE_DISPLAY
+            half = style.STATIC_BAND_SE * np.sqrt(g @ fit.covariance @ g) * style.PRESSURE_DISPLAY
             assert ys.max() - ys.min() == pytest.approx(2 * half, rel=1e-9)
             mid = (ys.max() + ys.min()) / 2
-            assert mid == pytest.approx(fit.predict(q) * plots.PRESSURE_DISPLAY, rel=READBACK_RTOL)
+            assert mid == pytest.approx(fit.predict(q) * style.PRESSURE_DISPLAY, rel=READBACK_RTOL)
 
 
 def test_figure9_one_errorbar_container_per_group(entries):
-    fig = plots.figure9_drift(entries)
+    fig = paper_figures.figure9_drift(entries)
     assert isinstance(fig, Figure)
     assert len(fig.axes) == 2
     # groups: (12, initial), (21, reversal), (12, reversal), all converged, plus one grey container
@@ -126,7 +126,7 @@ def test_figure9_inverse_alpha_interval_and_drift_line(entries):
         "p_R_Pa": {"slope_per_m_s": {"median": 1e7, "lo": -1e7, "hi": 3e7}, "intercept": {"median": 2e5},
                    "credible_nonzero": False},
     }
-    fig = plots.figure9_drift(entries[:1], drift)
+    fig = paper_figures.figure9_drift(entries[:1], drift)
     ax_p, ax_a = fig.axes
     e = entries[0]
     c = ax_a.containers[0]
@@ -136,7 +136,7 @@ def test_figure9_inverse_alpha_interval_and_drift_line(entries):
     assert sorted(seg[:, 1]) == pytest.approx([100 / e["alpha_V"]["hi"], 100 / e["alpha_V"]["lo"]])
     line = next(ln for ln in ax_p.get_lines() if ln.get_gid() == "drift-p_R_Pa")
     x, yl = line.get_xydata().T
-    np.testing.assert_allclose(yl, (2e5 + 1e7 * x / plots.SPEED_DISPLAY) * plots.PRESSURE_DISPLAY,
+    np.testing.assert_allclose(yl, (2e5 + 1e7 * x / style.SPEED_DISPLAY) * style.PRESSURE_DISPLAY,
                                rtol=1e-9)
     assert any(ln.get_gid() == "drift-alpha_V" for ln in ax_a.get_lines())
     texts = " ".join(t.get_text() for t in ax_p.texts)
@@ -144,7 +144,7 @@ def test_figure9_inverse_alpha_interval_and_drift_line(entries):
 
 
 def test_figure8_panels_and_bands(results):
-    fig = plots.figure8_transients(results, max_panels=5)
+    fig = paper_figures.figure8_transients(results, max_panels=5)
     assert isinstance(fig, Figure)
     assert len(fig.axes) == 5
     for ax, r in zip(fig.axes, results, strict=False):
@@ -154,11 +154,11 @@ def test_figure8_panels_and_bands(results):
         assert x[0] == pytest.approx(0.0)
         assert r.entry["id"] in ax.get_title()
     assert fig.axes[0].get_ylabel() == "force [kN]"
-    assert len(plots.figure8_transients(results).axes) == len(results)
+    assert len(paper_figures.figure8_transients(results).axes) == len(results)
 
 
 def test_corner_plot(results):
-    fig = plots.corner_plot(results[0], bins=10)
+    fig = diagnostic_plots.corner_plot(results[0], bins=10)
     assert isinstance(fig, Figure)
     k = len(NAMES)
     assert len(fig.axes) == k * (k + 1) // 2  # lower triangle and diagonal; the blank upper ones removed
@@ -168,7 +168,7 @@ def test_corner_plot(results):
 
 def test_trace_rank_plot(results):
     r = results[0]
-    fig = plots.trace_rank_plot(r, N_ENSEMBLES, walkers_per_ensemble=2)
+    fig = diagnostic_plots.trace_rank_plot(r, N_ENSEMBLES, walkers_per_ensemble=2)
     assert isinstance(fig, Figure)
     assert len(fig.axes) == 2 * len(NAMES)
     trace_axes, rank_axes = fig.axes[0::2], fig.axes[1::2]
@@ -176,7 +176,7 @@ def test_trace_rank_plot(results):
     for ax in rank_axes:
         assert len(ax.patches) == N_ENSEMBLES
     with pytest.raises(ValueError):
-        plots.trace_rank_plot(r, 3)
+        diagnostic_plots.trace_rank_plot(r, 3)
 
 
 def test_figure6_from_given_curves():
@@ -185,7 +185,7 @@ def test_figure6_from_given_curves():
               "fixed_p_r_Pa": 3e5,
               "p_R": {p: 4000 * (1 - np.exp(-t / (0.1 + p * 1e-6))) for p in (1e5, 3e5, 4e5)},
               "inverse_alpha": {a: 4000 * (1 - np.exp(-t / (10 * a))) for a in (0.01, 0.033, 0.04)}}
-    fig = plots.figure6_parametric(curves=curves)
+    fig = paper_figures.figure6_parametric(curves=curves)
     assert isinstance(fig, Figure)
     assert len(fig.axes) == 2
     for ax in fig.axes:
@@ -194,7 +194,7 @@ def test_figure6_from_given_curves():
 
 
 def test_figure6_simulates():
-    fig = plots.figure6_parametric(n_times=30, t_end=1.0)
+    fig = paper_figures.figure6_parametric(n_times=30, t_end=1.0)
     ax_p, ax_a = fig.axes
     forces = [ln.get_ydata() for ln in ax_p.get_lines()[:3]]
     assert all(np.all(np.isfinite(f)) for f in forces)

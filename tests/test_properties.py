@@ -18,7 +18,7 @@ from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace
 from bayesdamper.inference.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, TransientProblem
 from bayesdamper.io.dataset import COLUMNS, DAMPER_FILE, load_dataset
-from bayesdamper.physics.model import solve_single_state
+from bayesdamper.physics.single_state import solve_single_state
 
 #: Examples per loader property (files are tiny: each example is a few milliseconds).
 LOADER_EXAMPLES = 60

@@ -12,7 +12,7 @@ import pytest
 from bayesdamper.core.params import DynamicParameters
 from bayesdamper.io.synthetic import write_dataset
 from bayesdamper.report.html import REPORT_FILE, render_report
-from bayesdamper.run.workflows import run_report
+from bayesdamper.run.report import run_report
 
 #: The smallest valid PNG (1 x 1 pixel), standing in for a figure.
 PNG = bytes.fromhex("89504e470d0a1a0a0000000d49484452000000010000000108060000001f15c489"

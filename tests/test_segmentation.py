@@ -12,12 +12,7 @@ import pytest
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.core.params import RIG_A_DAMPER
 from bayesdamper.io.dataset import load_dataset, load_record
-from bayesdamper.io.segmentation import (
-    PLATEAU_FRACTION,
-    PLATEAU_MARGIN,
-    segment_dataset,
-    segment_record,
-)
+from bayesdamper.io.segmentation import PLATEAU_FRACTION, PLATEAU_MARGIN, segment_dataset, segment_record
 
 RIG_A = Path(__file__).resolve().parents[1] / "data" / "rig-A"
 AREA = RIG_A_DAMPER.piston_area

@@ -36,7 +36,7 @@ from numba import njit
 
 from bayesdamper.inference.priors import PHI_BOUNDS, ParameterSpace, ParameterSpec
 from bayesdamper.inference.problem import TransientProblem
-from bayesdamper.physics.model import solve_single_state
+from bayesdamper.physics.single_state import solve_single_state
 
 #: Names of the noise models accepted by :func:`make_noise_model` and the CLI.
 NOISE_MODELS = ("ar1", "white")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
-from bayesdamper.physics import model
+from bayesdamper.physics import single_state as model
 
 #: Kernel tolerances used inside the likelihood. The kernel's relative L2 error at rtol 1e-5 is < 1e-5
 #: over the prior box (benchmarks/forward.py): ~0.1 N on rig-A forces, two orders below the 12 N noise.
@@ -74,7 +74,7 @@ class TransientProblem:
     @classmethod
     def from_transient(cls, transient, damper: DamperConstants, flow: FlowCoefficients,
                        **kw) -> TransientProblem:
-        """Build from a :class:`bayesdamper.segmentation.Transient`."""
+        """Build from a :class:`bayesdamper.io.segments.Transient`."""
         return cls(transient.id, transient.time, transient.force, transient.t_step, transient.dp0,
                    transient.knot_times, transient.knot_displacements, damper, flow, **kw)
 

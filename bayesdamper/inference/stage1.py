@@ -150,7 +150,7 @@ def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
 
     Parameters
     ----------
-    plateaus : sequence of :class:`bayesdamper.segmentation.Plateau`
+    plateaus : sequence of :class:`bayesdamper.io.segments.Plateau`
         Each with ``direction``, ``flow_rate`` [m^3/s] and ``pressure_drop`` [Pa].
     source : str
         Data-set name used in error messages.

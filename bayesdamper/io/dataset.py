@@ -9,7 +9,7 @@ A data set is a folder holding
 * one CSV file per test, with a header naming the columns ``time_s``, ``displacement_m`` and
   ``force_N`` (any order; other columns are ignored), sampled at a constant rate, in SI units.
 
-Every problem found raises :class:`~bayesdamper.errors.DataError` with a one-line message
+Every problem found raises :class:`~bayesdamper.core.errors.DataError` with a one-line message
 ``"<path>: <problem>"``. Nothing downstream re-reads the files: the returned :class:`Dataset`
 carries read-only arrays and the SHA-256 of every input file for provenance.
 """

@@ -21,7 +21,8 @@ from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
 from bayesdamper.physics.effects import complete_effects
 from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import simulate_single_state, simulate_two_state
+from bayesdamper.physics.reference import simulate_two_state
+from bayesdamper.physics.single_state import simulate_single_state
 
 REST_S = 1.0
 AMPLITUDE_M = 5.0e-3
@@ -56,7 +57,7 @@ def simulate_record(velocity: float, dynamic: DynamicParameters, *, damper: Damp
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One test: sample times [s], measured displacement [m], measured force [N].
 
-    ``effects`` (``{effect: {param: value}}``, :mod:`bayesdamper.effects`) injects effects into the
+    ``effects`` (``{effect: {param: value}}``, :mod:`bayesdamper.physics.effects`) injects effects into the
     chosen base model (:func:`simulate_with_effects`); the displacement is the measured (actuator) one.
     """
     rng = rng or np.random.default_rng(0)
@@ -155,10 +156,10 @@ def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: D
                           accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> np.ndarray:
     """Measured force [N] at ``t`` [s] of the whole record with effects injected into the base model.
 
-    ``model="eq7"``: :func:`bayesdamper.augmented.simulate_augmented`; ``"two-state"``:
-    :func:`bayesdamper.augmented.simulate_two_state_augmented` (scipy Radau, slower). From rest at t = 0.
+    ``model="eq7"``: :func:`bayesdamper.physics.with_effects.simulate_augmented`; ``"two-state"``:
+    :func:`bayesdamper.physics.augmented.simulate_two_state_augmented` (scipy Radau, slower). From rest at t = 0.
     """
-    from bayesdamper.physics.augmented import simulate_augmented, simulate_two_state_augmented
+    from bayesdamper.physics.with_effects import simulate_augmented, simulate_two_state_augmented
 
     if model == "eq7":
         return simulate_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)

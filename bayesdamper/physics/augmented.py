@@ -1,5 +1,4 @@
-"""The forward model with candidate effects: eq. (7) (and the two-state eq. (1)) plus any of
-:mod:`bayesdamper.effects`.
+"""The compiled kernel of eq. (7) with candidate effects (:mod:`bayesdamper.physics.effects`).
 
 Chain from the measured (actuator) displacement y_A to the measured force F::
 
@@ -11,52 +10,44 @@ Chain from the measured (actuator) displacement y_A to the measured force F::
     F        = A_P Δp + F_f(v_P) + m a_P,   v_P = v_D - c A_P d(Δp)/dt
 
 with B_1, B_2 from eq. (6), Q_O from eq. (8), v_D = dy_D/dt, friction F_f and the corner-filtered
-acceleration a_P of :mod:`bayesdamper.effects.inertia`. With every effect off this is eq. (7).
+acceleration a_P of :mod:`bayesdamper.physics.effects.inertia`. With every effect off this is eq. (7).
 
 Effect vector
 -------------
-The effect parameters travel as one float64 vector of fixed layout :data:`EFFECT_SLOTS` (this module
-is the only place that knows the order); :func:`pack_effects` / :func:`unpack_effects` convert from
-and to ``{effect: {param: value}}``. A slot at 0 switches its part off (the stiffness is stored as
-the compliance 1/k_s), except that τ_v = 0 with p_v > 0 is the quasi-static valve x = x_ss(Δp).
+The effect parameters travel as one float64 vector of fixed layout (:mod:`bayesdamper.physics.effect_vector`).
+A slot at 0 switches its part off (the stiffness is stored as the compliance 1/k_s), except that τ_v = 0
+with p_v > 0 is the quasi-static valve x = x_ss(Δp). The Python simulators that drive this kernel live in
+:mod:`bayesdamper.physics.with_effects`.
 
 Method of :func:`solve_augmented`
 ---------------------------------
-The RODAS4 of :mod:`bayesdamper.model` (same coefficients, step control, dense output, a fresh
+The RODAS4 of :mod:`bayesdamper.physics.rodas` (same coefficients, step control, dense output, a fresh
 initial step at every knot, no step across a knot) on the states (Δp, x) with the analytic 2x2
 Jacobian; x is integrated only when the valve dynamics are on (otherwise its stage increments are
 exactly 0). The actuator-lag and corner-filter states obey linear ODEs driven by the piecewise-linear
 input, so they are integrated exactly in closed form on each knot segment and carried across knots.
 Friction and inertia only add to the output force. Status codes are those of
-:data:`bayesdamper.model.STATUS_MESSAGES`.
+:data:`bayesdamper.physics.rodas.STATUS_MESSAGES`.
 
-numba caching: the kernel calls njit functions of :mod:`bayesdamper.effects` and reads their constants
-at compile time; after changing those, delete ``bayesdamper/__pycache__/augmented*.nb[ic]``.
+numba caching: the kernel calls njit functions of :mod:`bayesdamper.physics.effects` and reads their constants
+at compile time; after changing those, delete ``bayesdamper/physics/__pycache__/augmented*.nb[ic]``.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from dataclasses import dataclass, field
 
 import numpy as np
 from numba import njit
-from scipy.integrate import solve_ivp
 
-from bayesdamper.core.errors import BayesDamperError, SettingsError
-from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
-from bayesdamper.physics import model as _m
+from bayesdamper.physics import rodas as _m
 from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
-from bayesdamper.physics.effects import EFFECTS, complete_effects
-from bayesdamper.physics.effects.backlash import backlash_knots
-from bayesdamper.physics.effects.friction import friction_force, friction_force_scalar
+from bayesdamper.physics.effect_vector import _SLOT_PARAM, EFFECT_SLOTS
+from bayesdamper.physics.effects.friction import friction_force_scalar
 from bayesdamper.physics.effects.inertia import CORNER_TIME_S
-from bayesdamper.physics.effects.valve_dynamics import MIN_OPENING, steady_opening
-from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.model import (
-    DEFAULT_ATOL,
-    DEFAULT_RTOL,
+from bayesdamper.physics.effects.valve_dynamics import steady_opening
+from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
+from bayesdamper.physics.rodas import (
     STATUS_BAD_INPUT,
     STATUS_MAX_STEPS,
     STATUS_MESSAGES,
@@ -65,69 +56,46 @@ from bayesdamper.physics.model import (
     STATUS_STEP_UNDERFLOW,
     STATUS_VOLUME,
 )
-from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
 
-# RODAS4 coefficients and step control shared with the eq. (7) kernel (model.py).
+# RODAS4 coefficients and step control shared with the eq. (7) kernel (single_state.py).
 _GAMMA, _C2, _C3, _C4, _D1, _D2, _D3, _D4 = _m._GAMMA, _m._C2, _m._C3, _m._C4, _m._D1, _m._D2, _m._D3, _m._D4
+
+
 _A21, _A31, _A32, _A41, _A42, _A43 = _m._A21, _m._A31, _m._A32, _m._A41, _m._A42, _m._A43
+
+
 _A51, _A52, _A53, _A54 = _m._A51, _m._A52, _m._A53, _m._A54
+
+
 _C21, _C31, _C32, _C41, _C42, _C43 = _m._C21, _m._C31, _m._C32, _m._C41, _m._C42, _m._C43
+
+
 _C51, _C52, _C53, _C54, _C61, _C62, _C63, _C64, _C65 = (_m._C51, _m._C52, _m._C53, _m._C54, _m._C61, _m._C62,
                                                         _m._C63, _m._C64, _m._C65)
+
+
 _E21, _E22, _E23, _E24, _E25 = _m._E21, _m._E22, _m._E23, _m._E24, _m._E25
+
+
 _E31, _E32, _E33, _E34, _E35 = _m._E31, _m._E32, _m._E33, _m._E34, _m._E35
 
-__all__ = [
-    "EFFECT_SLOTS", "MAX_STEPS", "AugmentedProblem", "backlash_knots", "pack_effects",
-    "simulate_augmented", "simulate_two_state_augmented", "solve_augmented", "unpack_effects",
-]
 
-#: Layout of the effect vector: slot names, in order (units of the slots in parentheses):
-#: friction F_C (N), c_v (N s/m), F_S (N), v_St (m/s); backlash gap (m); actuator lag τ_a (s);
-#: valve τ_v (s), p_v (Pa); series compliance 1/k_s (m/N); moving mass m (kg).
-EFFECT_SLOTS = ("coulomb", "viscous", "stribeck", "stribeck_v", "gap", "lag_tau", "valve_tau", "valve_p",
-                "compliance", "mass")
+__all__ = ["MAX_STEPS", "solve_augmented"]
+
+
 (_COULOMB, _VISCOUS, _STRIBECK, _STRIBECK_V, _GAP, _LAG_TAU, _VALVE_TAU, _VALVE_P, _COMPLIANCE,
  _MASS) = range(len(EFFECT_SLOTS))
+
+
 #: Maximum number of accepted steps of one :func:`solve_augmented` call (whole records included).
 MAX_STEPS = 100_000
+
+
 _MESSAGES = {**STATUS_MESSAGES, STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed"}
 
-_SLOT_PARAM = {p.slot: (e.name, p) for e in EFFECTS.values() for p in e.params}
+
 if set(_SLOT_PARAM) != set(EFFECT_SLOTS) or len(_SLOT_PARAM) != len(EFFECT_SLOTS):  # pragma: no cover
-    raise ImportError("bayesdamper.augmented: EFFECT_SLOTS and the effect registry disagree")
-
-
-def pack_effects(effects: Mapping[str, Mapping[str, float] | None] | None) -> np.ndarray:
-    """Effect vector of layout :data:`EFFECT_SLOTS` from ``{effect: {param: value}}``.
-
-    Named effects take their defaults for unspecified parameters; effects not named are off.
-
-    Returns
-    -------
-    ndarray, shape (len(EFFECT_SLOTS),)
-    """
-    vec = np.zeros(len(EFFECT_SLOTS))
-    for name, values in complete_effects(effects).items():
-        for p in EFFECTS[name].params:
-            vec[EFFECT_SLOTS.index(p.slot)] = p.to_slot(values[p.name])
-    return vec
-
-
-def unpack_effects(vec: np.ndarray, *, keep_off: bool = False) -> dict[str, dict[str, float]]:
-    """``{effect: {param: value}}`` from an effect vector (inverse of :func:`pack_effects`).
-
-    An effect whose slots are all 0 is left out unless ``keep_off``.
-    """
-    vec = np.asarray(vec, dtype=float)
-    if vec.shape != (len(EFFECT_SLOTS),):
-        raise SettingsError(f"effect vector must have shape ({len(EFFECT_SLOTS)},), got {vec.shape}")
-    out = {}
-    for name, e in EFFECTS.items():
-        slots = [float(vec[EFFECT_SLOTS.index(p.slot)]) for p in e.params]
-        if keep_off or any(s != 0.0 for s in slots):
-            out[name] = {p.name: p.from_slot(s) for p, s in zip(e.params, slots, strict=True)}
-    return out
+    raise ImportError("bayesdamper.physics.augmented: EFFECT_SLOTS and the effect registry disagree")
 
 
 # ----------------------------------------------------------------------------- kernel internals
@@ -317,7 +285,7 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
     force : ndarray, shape (n_t,)
         Measured force F [N] at ``t_out``; finite when status is 0, unspecified otherwise.
     status : int
-        0 on success; the codes of :data:`bayesdamper.model.STATUS_MESSAGES` (3: more than
+        0 on success; the codes of :data:`bayesdamper.physics.rodas.STATUS_MESSAGES` (3: more than
         :data:`MAX_STEPS` steps).
     """
     n_t = t_out.shape[0]
@@ -509,334 +477,3 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
         if not math.isfinite(out[i]):
             return out, STATUS_NONFINITE
     return out, STATUS_OK
-
-
-# ----------------------------------------------------------------------------- Python wrappers
-def _times(t_out) -> np.ndarray:
-    t_out = np.ascontiguousarray(t_out, dtype=float)
-    if t_out.ndim != 1 or t_out.size == 0 or not np.all(np.isfinite(t_out)):
-        raise SettingsError("output times must be a non-empty 1-D array of finite numbers")
-    if np.any(np.diff(t_out) < 0):
-        raise SettingsError("output times must be non-decreasing")
-    return t_out
-
-
-def _held_knots(kt: np.ndarray, ky: np.ndarray, t_lo: float, t_hi: float) -> tuple[np.ndarray, np.ndarray]:
-    """Knots extended to cover ``[t_lo, t_hi]`` [s] with the end displacements held."""
-    if t_lo < kt[0]:
-        kt, ky = np.concatenate(([t_lo], kt)), np.concatenate(([ky[0]], ky))
-    if t_hi > kt[-1]:
-        kt, ky = np.concatenate((kt, [t_hi])), np.concatenate((ky, [ky[-1]]))
-    return np.ascontiguousarray(kt), np.ascontiguousarray(ky)
-
-
-def _velocity_before(kt: np.ndarray, ky: np.ndarray, t0: float) -> float:
-    """Left-limit velocity [m/s] of the piecewise-linear displacement at ``t0`` [s] (0 before the knots)."""
-    j = int(np.searchsorted(kt, t0, side="left"))
-    if j == 0 or j >= kt.size:
-        return 0.0
-    return float((ky[j] - ky[j - 1]) / (kt[j] - kt[j - 1]))
-
-
-def _piston_knots(excitation: PiecewiseLinear, gap: float, t_lo: float, t_hi: float):
-    """Backlash-transformed knots of the whole excitation, held to cover ``[t_lo, t_hi]``."""
-    kt, ky = backlash_knots(excitation.knot_times, excitation.knot_displacements, gap)
-    return _held_knots(kt, ky, t_lo, t_hi)
-
-
-def _start(t_out: np.ndarray, t0: float | None) -> float:
-    t0 = float(t_out[0]) if t0 is None else float(t0)
-    if not (np.isfinite(t0) and t_out[0] >= t0):
-        raise SettingsError(f"output times start at {t_out[0]!r} s, before the transient start t0={t0!r} s")
-    return t0
-
-
-def simulate_augmented(
-    t_out: np.ndarray,
-    excitation: PiecewiseLinear,
-    damper: DamperConstants,
-    flow: FlowCoefficients,
-    dynamic: DynamicParameters,
-    effects: Mapping[str, Mapping[str, float] | None] | None,
-    *,
-    dp0: float = 0.0,
-    t0: float | None = None,
-    rtol: float = DEFAULT_RTOL,
-    atol: float = DEFAULT_ATOL,
-) -> np.ndarray:
-    """Measured force of eq. (7) with effects at the sample times (:func:`solve_augmented`).
-
-    Parameters
-    ----------
-    t_out : ndarray, shape (n_t,)
-        Non-decreasing sample times [s], all >= ``t0``.
-    excitation : PiecewiseLinear
-        Measured (actuator) displacement of the whole record from its start [m]; backlash is applied
-        to all of it (piston centred in the play at the first knot), so the play state at ``t0``
-        follows from the history.
-    damper, flow, dynamic
-        A_P, V_{0,1}, V_{0,2}, B_0; eq. (8) coefficients; α_V and p_R of eq. (6).
-    effects : dict or None
-        ``{effect: {param: value}}`` (:mod:`bayesdamper.effects`; defaults fill the rest).
-    dp0 : float
-        Δp at ``t0`` [Pa] (hydraulic part; the force at t0 adds friction).
-    t0 : float, optional
-        Start of the solution [s]; default ``t_out[0]``. Lag and corner filter start in the steady
-        state of the velocity just before t0.
-    rtol, atol : float
-        Kernel tolerances: relative [-] and absolute [Pa].
-
-    Returns
-    -------
-    ndarray, shape (n_t,)
-        Measured force F [N].
-
-    Raises
-    ------
-    BayesDamperError
-        If the solve fails (one line naming the reason).
-    """
-    t_out = _times(t_out)
-    t0 = _start(t_out, t0)
-    eff = pack_effects(effects)
-    kt, ky = _piston_knots(excitation, eff[_GAP], t0, float(t_out[-1]))
-    force, status = solve_augmented(
-        t_out, kt, ky, t0, float(dp0), _velocity_before(kt, ky, t0), damper.piston_area,
-        damper.chamber_volume_1, damper.chamber_volume_2, damper.liquid_bulk_modulus, flow.as_array(),
-        float(dynamic.liquid_gas_ratio), float(dynamic.reference_pressure), eff, float(rtol), float(atol))
-    if status != STATUS_OK:
-        raise BayesDamperError(f"augmented solve failed (alpha_V={dynamic.liquid_gas_ratio!r}, "
-                               f"p_R={dynamic.reference_pressure!r} Pa, effects={unpack_effects(eff)}): "
-                               f"{_MESSAGES[int(status)]}")
-    return force
-
-
-# ----------------------------------------------------------------------------- problem binding
-#: Kernel tolerances inside the likelihood: those of :class:`bayesdamper.problem.TransientProblem`.
-PROBLEM_RTOL = 1e-6
-PROBLEM_ATOL = 1.0  # [Pa]
-
-
-@dataclass(frozen=True, eq=False)
-class AugmentedProblem:
-    """One transient window bound to the damper, its flow coefficients and the whole record's knots.
-
-    The diagnosis calls :meth:`simulate_force` with (α_V, p_R) and an effect vector. The whole
-    record's displacement knots let backlash and actuator lag see the history before the step.
-
-    Attributes
-    ----------
-    segment_id : str
-        Identifier of the transient.
-    time : ndarray, shape (n_times,)
-        Absolute sample times [s], the first at or after ``t_step``. Read-only.
-    force : ndarray, shape (n_times,)
-        Measured force F_E [N]. Read-only.
-    t_step : float
-        Time of the velocity step [s].
-    step_force : float
-        Measured force at the step [N] (friction included).
-    record_knot_times, record_knot_displacements : ndarray, shape (n_knots,)
-        Knots of the whole record's measured displacement [s], [m]. Read-only.
-    damper : DamperConstants
-    flow : FlowCoefficients
-    rtol, atol : float
-        Kernel tolerances [-], [Pa].
-    """
-
-    segment_id: str
-    time: np.ndarray
-    force: np.ndarray
-    t_step: float
-    step_force: float
-    record_knot_times: np.ndarray
-    record_knot_displacements: np.ndarray
-    damper: DamperConstants
-    flow: FlowCoefficients
-    rtol: float = PROBLEM_RTOL
-    atol: float = PROBLEM_ATOL
-    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-
-    def __post_init__(self) -> None:
-        for name in ("time", "force", "record_knot_times", "record_knot_displacements"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64).copy()
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
-        object.__setattr__(self, "_flow4", self.flow.as_array())
-        if self.time.size == 0 or self.time.shape != self.force.shape:
-            raise SettingsError(f"{self.segment_id}: time and force must be non-empty and of equal length")
-        if not (self.record_knot_times[0] <= self.t_step <= self.time[0]):
-            raise SettingsError(f"{self.segment_id}: the record knots must start at or before the step, "
-                                "and the samples at or after it")
-
-    @classmethod
-    def from_transient(cls, transient, record_knot_times: np.ndarray, record_knot_displacements: np.ndarray,
-                       damper: DamperConstants, flow: FlowCoefficients, **kw) -> AugmentedProblem:
-        """Build from a :class:`bayesdamper.segmentation.Transient` and its record's knots
-        (``SegmentedRecord.knot_times``, ``.knot_displacements``)."""
-        return cls(transient.id, transient.time, transient.force, float(transient.t_step),
-                   float(transient.dp0) * damper.piston_area, record_knot_times, record_knot_displacements,
-                   damper, flow, **kw)
-
-    @classmethod
-    def from_segmented(cls, record, transient, damper: DamperConstants, flow: FlowCoefficients,
-                       **kw) -> AugmentedProblem:
-        """Build from a :class:`bayesdamper.segmentation.SegmentedRecord` and one of its transients."""
-        return cls.from_transient(transient, record.knot_times, record.knot_displacements, damper, flow, **kw)
-
-    def knots(self, gap: float) -> tuple[np.ndarray, np.ndarray, float]:
-        """Piston knots behind a play ``gap`` [m] covering the window, and the velocity before the step.
-
-        Returns ``(knot_t [s], knot_y [m], v_prev [m/s])``; the last gap's result is cached.
-        """
-        hit = self._cache.get("knots")
-        if hit is not None and hit[0] == gap:
-            return hit[1]
-        kt, ky = backlash_knots(self.record_knot_times, self.record_knot_displacements, gap)
-        kt, ky = _held_knots(kt, ky, self.t_step, float(self.time[-1]))
-        result = (kt, ky, _velocity_before(kt, ky, self.t_step))
-        self._cache["knots"] = (gap, result)
-        return result
-
-    def initial_dp(self, eff: np.ndarray, v_prev: float) -> float:
-        """Δp at the step [Pa]: ``(F_step - F_f(v_prev)) / A_P`` (the step force includes friction)."""
-        f = self.step_force
-        if eff[_COULOMB] > 0.0 or eff[_VISCOUS] > 0.0 or eff[_STRIBECK] > 0.0:  # plain Python: no dispatch
-            f -= friction_force_scalar.py_func(v_prev, float(eff[_COULOMB]), float(eff[_VISCOUS]),
-                                               float(eff[_STRIBECK]), float(eff[_STRIBECK_V]))
-        return f / self.damper.piston_area
-
-    def simulate_force(self, alpha_v: float, p_r: float, eff: np.ndarray) -> tuple[np.ndarray, bool]:
-        """Computed force F_C [N] at the sample times and whether the solve succeeded.
-
-        Parameters
-        ----------
-        alpha_v, p_r : float
-            α_V [-] and p_R [Pa] of eq. (6).
-        eff : ndarray, shape (len(EFFECT_SLOTS),)
-            Effect vector (:func:`pack_effects`).
-        """
-        eff = np.asarray(eff, dtype=np.float64)
-        gap = float(eff[_GAP]) if eff.shape == (len(EFFECT_SLOTS),) else math.nan
-        if not 0.0 <= gap < math.inf:  # the kernel checks the other slots
-            return np.full(self.time.shape, np.nan), False
-        kt, ky, v_prev = self.knots(gap)
-        d = self.damper
-        force, status = solve_augmented(self.time, kt, ky, self.t_step, self.initial_dp(eff, v_prev), v_prev,
-                                        d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
-                                        d.liquid_bulk_modulus, self._flow4, float(alpha_v), float(p_r), eff,
-                                        self.rtol, self.atol)
-        return force, status == STATUS_OK
-
-
-# ----------------------------------------------------------------------------- two-state with effects
-def simulate_two_state_augmented(
-    t_out: np.ndarray,
-    excitation: PiecewiseLinear,
-    damper: DamperConstants,
-    flow: FlowCoefficients,
-    dynamic: DynamicParameters,
-    effects: Mapping[str, Mapping[str, float] | None] | None,
-    *,
-    dp0: float = 0.0,
-    t0: float | None = None,
-    accumulator_conductance: float = 1e-8,
-    rtol: float = 1e-8,
-    atol: float = 1e-3,
-) -> np.ndarray:
-    """Measured force of the two-state model eq. (1) with effects, by scipy ``Radau`` (slow reference).
-
-    States: absolute pressures p_1, p_2 [Pa] (eq. (3) bulk modulus per chamber with reference p_R,
-    accumulator refill ``G max(p_R - p_i, 0)`` as in :func:`bayesdamper.model.simulate_two_state`),
-    valve opening x [-], lag trail e = y_A - y_D [m] and corner-filtered velocity v_f [m/s] as ODE
-    states; series compliance by eliminating d(p_1 - p_2)/dt from ``v_P = v_D - c A_P d(p_1 - p_2)/dt``;
-    backlash on the knots; friction and inertia added to the force. Start: ``p_1 = p_R + max(dp0, 0)``,
-    ``p_2 = p_R + max(-dp0, 0)``, x = x_ss(dp0), steady lag and filter.
-
-    Parameters
-    ----------
-    t_out, excitation, damper, flow, dynamic, effects, dp0, t0
-        As for :func:`simulate_augmented`.
-    accumulator_conductance : float
-        Check-valve conductance G [m^3 s^-1 Pa^-1]; 0 disables the accumulator.
-    rtol, atol : float
-        ``solve_ivp`` tolerances: relative [-], absolute for the pressures [Pa].
-
-    Returns
-    -------
-    ndarray, shape (n_t,)
-        Measured force F [N].
-    """
-    g_acc = float(accumulator_conductance)
-    if not (np.isfinite(g_acc) and g_acc >= 0):
-        raise SettingsError(f"accumulator conductance must be finite and >= 0, got {accumulator_conductance}")
-    t_out = _times(t_out)
-    t0 = _start(t_out, t0)
-    eff = pack_effects(effects)
-    kt, ky = _piston_knots(excitation, eff[_GAP], t0, float(t_out[-1]))
-    v_prev = _velocity_before(kt, ky, t0)
-    area, v01, v02 = damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2
-    b0, alpha_v, p_r = damper.liquid_bulk_modulus, dynamic.liquid_gas_ratio, dynamic.reference_pressure
-    cl12, cq12, cl21, cq21 = flow.as_array().tolist()
-    comp, tau_a, tau_v, p_v, mass = (float(eff[i])
-                                     for i in (_COMPLIANCE, _LAG_TAU, _VALVE_TAU, _VALVE_P, _MASS))
-    vmode = 0 if p_v == 0.0 else (2 if tau_v > 0.0 else 1)
-    fric = {p.name: float(eff[EFFECT_SLOTS.index(p.slot)]) for p in EFFECTS["friction"].params}
-
-    def bulk(p):
-        return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
-
-    def x_ss(dp):
-        return max(1.0 - math.exp(-abs(dp) / p_v), MIN_OPENING)
-
-    def parts(t, z, ta, ya, va):
-        p1, p2, xv, e, vf = z
-        vd, de = (e / tau_a, va - e / tau_a) if tau_a > 0 else (va, 0.0)
-        dp = p1 - p2
-        y = ya + va * (t - ta) - e - comp * area * dp
-        a1, a2 = bulk(p1) / (v01 - area * y), bulk(p2) / (v02 + area * y)
-        c_l, c_q = (cl12, cq12) if dp >= 0 else (cl21, cq21)
-        q = 2.0 * dp / (c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) if dp else 0.0
-        dx = 0.0
-        if vmode == 2:
-            dx = (x_ss(dp) - xv) / tau_v
-            q *= xv
-        elif vmode == 1:
-            q *= x_ss(dp)
-        qa1, qa2 = g_acc * max(p_r - p1, 0.0), g_acc * max(p_r - p2, 0.0)
-        u = ((a1 + a2) * (area * vd - q) + a1 * qa1 - a2 * qa2) / (1.0 + (a1 + a2) * comp * area * area)
-        vp = vd - comp * area * u
-        rates = [a1 * (area * vp - q + qa1), a2 * (-area * vp + q + qa2), dx, de, (va - vf) / CORNER_TIME_S]
-        return rates, vp
-
-    def force_at(t, z, ta, ya, va):
-        vp = parts(t, z, ta, ya, va)[1]
-        return (area * (z[0] - z[1]) + float(friction_force(vp, **fric))
-                + mass * (va - z[4]) / CORNER_TIME_S)
-
-    z = np.array([p_r + max(dp0, 0.0), p_r + max(-dp0, 0.0), x_ss(dp0) if vmode == 2 else 1.0,
-                  v_prev * tau_a, v_prev])
-    atols = np.array([atol, atol, 1e-9, 1e-12, 1e-12])
-    out = np.full(t_out.size, np.nan)
-    k0 = max(int(np.searchsorted(kt, t0, side="right")) - 1, 0)
-    for k in range(k0, kt.size - 1):
-        ta, tb = max(kt[k], t0), min(kt[k + 1], float(t_out[-1]))
-        va = (ky[k + 1] - ky[k]) / (kt[k + 1] - kt[k])
-        ya = ky[k] + va * (ta - kt[k])
-        if k == k0:
-            for i in np.flatnonzero(t_out <= ta):
-                out[i] = force_at(ta, z, ta, ya, va)
-        if ta >= tb:
-            break
-        sel = np.flatnonzero((t_out > ta) & (t_out <= tb))
-        t_eval = np.append(t_out[sel], tb) if sel.size == 0 or t_out[sel[-1]] < tb else t_out[sel]
-        sol = solve_ivp(lambda t, zz, ta, ya, va: parts(t, zz, ta, ya, va)[0], (ta, tb), z, method="Radau",
-                        t_eval=t_eval, args=(ta, ya, va), rtol=rtol, atol=atols)
-        if sol.status != 0:
-            raise BayesDamperError(f"two-state augmented solve failed: {sol.message}")
-        for j, i in enumerate(sel):
-            out[i] = force_at(t_out[i], sol.y[:, j], ta, ya, va)
-        z = sol.y[:, -1]
-    if not np.all(np.isfinite(out)):
-        raise BayesDamperError("two-state augmented solve failed: non-finite force")
-    return out

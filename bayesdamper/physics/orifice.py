@@ -18,7 +18,7 @@ Its slope is ``dQ/dΔp = 1 / sqrt(C_L^2 + 4 C_Q |Δp|) = 1 / (C_L + 2 C_Q |Q|)``
 
 The vectorised NumPy functions are the public API; the ``numba`` scalar twins are what the
 forward-model kernel calls, with the coefficients in the order of
-:meth:`bayesdamper.params.FlowCoefficients.as_array`: ``[C_L12, C_Q12, C_L21, C_Q21]``.
+:meth:`bayesdamper.core.params.FlowCoefficients.as_array`: ``[C_L12, C_Q12, C_L21, C_Q21]``.
 """
 
 from __future__ import annotations

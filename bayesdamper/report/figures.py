@@ -9,7 +9,8 @@ Layout (paths relative to the output folder):
 * ``figures/corner/<id>.png`` and ``figures/trace/<id>.png``: per-transient posterior diagnostics
   (PNG only, to keep the run fast).
 
-The plotting itself is in :mod:`bayesdamper.plots`; this module only pages, names and saves.
+The plotting itself is in :mod:`bayesdamper.report.paper_figures` and
+:mod:`bayesdamper.report.diagnostic_plots`; this module only pages, names and saves.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.io.outputs import save_figure
-from bayesdamper.report import plots
+from bayesdamper.report import diagnostic_plots, paper_figures
 
 #: Folder, inside the output folder, that holds every figure.
 FIGURES_DIR = "figures"
@@ -50,10 +51,11 @@ def _n_ensembles(summary: dict, n_chains: int) -> int:
 
 
 def _render(job: Job) -> list[Path]:
-    """Draw one figure with :mod:`bayesdamper.plots` and save it (runs in a worker process)."""
+    """Draw one figure and save it (runs in a worker process)."""
     _, func, args, kwargs, stem, formats = job
     # per-transient diagnostics (PNG only) have hand-set margins: skip the tight-bbox pass
-    return save_figure(getattr(plots, func)(*args, **kwargs), stem, formats, tight=len(formats) > 1)
+    draw = getattr(paper_figures, func, None) or getattr(diagnostic_plots, func)
+    return save_figure(draw(*args, **kwargs), stem, formats, tight=len(formats) > 1)
 
 
 def _warm_up() -> None:
@@ -90,13 +92,13 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
     ----------
     out_dir : Path
         The run's output folder; figures go to ``out_dir / "figures"``.
-    ds : bayesdamper.data.Dataset or None
+    ds : bayesdamper.io.dataset.Dataset or None
         The data set (its name titles the paper's figures).
-    segs : sequence of bayesdamper.segmentation.SegmentedRecord
+    segs : sequence of bayesdamper.io.segments.SegmentedRecord
         Segmented records (not needed by the current figures; part of the stable signature).
-    static : bayesdamper.static.StaticFit
+    static : bayesdamper.inference.stage1.StaticFit
         Stage-1 fit.
-    results : sequence of bayesdamper.identify.TransientResult
+    results : sequence of bayesdamper.inference.stage2.TransientResult
         Stage-2 results, in summary order.
     summary : dict
         The run summary (``segments``, ``drift``, ``credible_mass``, ``settings``).

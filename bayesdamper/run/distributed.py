@@ -1,7 +1,7 @@
 """Stage 2 on a Dask distributed cluster (``bayesdamper identify --scheduler ADDRESS``).
 
 The tasks are the same per-transient tasks the local process pool runs
-(:func:`bayesdamper.identify.identify_transient`); each carries its transient's data arrays, the
+(:func:`bayesdamper.inference.stage2.identify_transient`); each carries its transient's data arrays, the
 damper constants, the stage-1 coefficients, the settings and the run seed, so a worker needs only the
 ``bayesdamper`` package, not the data files. A worker writes the transient's NetCDF posterior into
 a private temporary folder and returns its bytes; the client writes them atomically into
@@ -73,7 +73,7 @@ def _remote_identify(task: tuple) -> tuple:
 def map_transients(client, tasks: Sequence[tuple], on_done: Callable[[int, object, int], None]) -> list:
     """Run the per-transient ``tasks`` on the cluster; results in task order.
 
-    Each task is the tuple :func:`bayesdamper.workflows.identify_all` builds; its sixth item is the
+    Each task is the tuple :func:`bayesdamper.run.stages.identify_all` builds; its sixth item is the
     NetCDF path on *this* machine (or None). ``on_done(index, result, n_done)`` is called as tasks
     finish, after the result's NetCDF (if any) has been written.
     """

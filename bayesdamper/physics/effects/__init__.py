@@ -3,7 +3,7 @@
 Each module defines ``EFFECT``, an :class:`Effect` naming the effect's parameters (SI units,
 log-uniform prior bounds, default strength, the value that switches it off, and the slot of the
 augmented effect vector it fills), plus the scalar physics the forward kernel calls. The forward
-model with any combination of effects is :mod:`bayesdamper.augmented`.
+model with any combination of effects is :mod:`bayesdamper.physics.augmented`.
 
 An effect set is a ``dict[effect name -> dict[parameter name -> value]]``; :func:`complete_effects`
 fills the defaults, :func:`parse_effect_spec` reads the command-line form

@@ -2,8 +2,8 @@
 
 An :class:`Effect` is pure metadata: name, one-line physical reading and an ordered tuple of
 :class:`EffectParam`. The physics lives in the effect's own module (scalar functions the forward
-kernel calls) and in :mod:`bayesdamper.augmented` (the forward model). Each parameter names the slot
-of the augmented effect vector it fills; only :mod:`bayesdamper.augmented` knows the slots' order.
+kernel calls) and in :mod:`bayesdamper.physics.augmented` (the forward model). Each parameter names the slot
+of the augmented effect vector it fills; only :mod:`bayesdamper.physics.augmented` knows the slots' order.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ class EffectParam:
         Value at which the parameter has no effect [unit] (``inf`` for a stiffness).
     slot : str
         Name of the slot of the augmented effect vector this parameter fills
-        (:data:`bayesdamper.augmented.EFFECT_SLOTS`).
+        (:data:`bayesdamper.physics.effect_vector.EFFECT_SLOTS`).
     reciprocal : bool
         The slot holds ``1 / value`` (a stiffness stored as a compliance, so that 0 = off).
     """

@@ -10,7 +10,7 @@ coefficient c_v [N s/m]; the smoothed sign uses the fixed velocity scale ``SIGN_
 Positive F_f has the sign of v (positive force compresses CH1, like Δp > 0).
 
 At a velocity step the measured step force includes F_f(v_before), so the initial Δp of a transient
-is ``(F_step - F_f(v_before)) / A_P`` (:class:`bayesdamper.augmented.AugmentedProblem` does this).
+is ``(F_step - F_f(v_before)) / A_P`` (:class:`bayesdamper.physics.with_effects.AugmentedProblem` does this).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Forward models of the damper: the single-state model eq. (7) and the two-state reference eq. (1).
+"""The single-state model eq. (7): its compiled RODAS4 kernel and the simulator built on it.
 
 Single-state model, eq. (7) (eq. (5) with the bulk moduli of eq. (6))::
 
@@ -25,15 +25,13 @@ where the laminar term dominates eq. (8). A Dormand-Prince 5(4) twin measured in
 as fast at equal cost but ~10x less accurate at equal rtol; RODAS4 is stable at any step size.
 ``benchmarks/forward.py`` gives the speed and accuracy against scipy.
 
-Status codes of the kernel (``STATUS_MESSAGES`` maps them to text): 0 success (output finite),
-1 non-finite state, 2 step-size underflow, 3 maximum number of steps exceeded, 4 a chamber volume
-<= 0 on the excitation, 5 invalid input (times, tolerances or parameters).
+Status codes and tolerances: :mod:`bayesdamper.physics.rodas`. The two-state model eq. (1) and the scipy
+reference of eq. (7): :mod:`bayesdamper.physics.reference`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -44,63 +42,65 @@ from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoef
 from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
 from bayesdamper.physics.excitation import PiecewiseLinear
 from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
+from bayesdamper.physics.rodas import (
+    _A21,
+    _A31,
+    _A32,
+    _A41,
+    _A42,
+    _A43,
+    _A51,
+    _A52,
+    _A53,
+    _A54,
+    _C2,
+    _C3,
+    _C4,
+    _C21,
+    _C31,
+    _C32,
+    _C41,
+    _C42,
+    _C43,
+    _C51,
+    _C52,
+    _C53,
+    _C54,
+    _C61,
+    _C62,
+    _C63,
+    _C64,
+    _C65,
+    _D1,
+    _D2,
+    _D3,
+    _D4,
+    _E21,
+    _E22,
+    _E23,
+    _E24,
+    _E25,
+    _E31,
+    _E32,
+    _E33,
+    _E34,
+    _E35,
+    _GAMMA,
+    DEFAULT_ATOL,
+    DEFAULT_RTOL,
+    MAX_STEPS,
+    STATUS_BAD_INPUT,
+    STATUS_MAX_STEPS,
+    STATUS_MESSAGES,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_STEP_UNDERFLOW,
+    STATUS_VOLUME,
+    predictive_step,
+    step_factor,
+)
 
-__all__ = [
-    "DEFAULT_ATOL", "DEFAULT_RTOL", "MAX_STEPS", "STATUS_MESSAGES", "TwoStateSolution",
-    "reference_single_state", "simulate_single_state", "simulate_two_state", "solve_single_state",
-    "solve_single_state_batch",
-]
-
-#: Default relative tolerance of the kernel: rel. L2 error <= 6e-6 over the prior box (benchmarks/forward.py).
-DEFAULT_RTOL = 1e-6
-#: Default absolute tolerance of the kernel [Pa] (4e-5 N on rig A; dominates only for |Δp| < 1e4 Pa).
-DEFAULT_ATOL = 1e-2
-#: Maximum number of accepted steps of one kernel solve.
-MAX_STEPS = 20_000
-
-STATUS_OK, STATUS_NONFINITE, STATUS_STEP_UNDERFLOW = 0, 1, 2
-STATUS_MAX_STEPS, STATUS_VOLUME, STATUS_BAD_INPUT = 3, 4, 5
-STATUS_MESSAGES = {
-    STATUS_OK: "success",
-    STATUS_NONFINITE: "the pressure difference became non-finite",
-    STATUS_STEP_UNDERFLOW: "the step size underflowed",
-    STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed",
-    STATUS_VOLUME: "a chamber volume is <= 0 on the excitation",
-    STATUS_BAD_INPUT: "invalid times, tolerances or parameters",
-}
-
-# RODAS4 coefficients (rodas.f, METH = 1); _E2j, _E3j are its dense-output D2j, D3j.
-_GAMMA, _C2, _C3, _C4 = 0.25, 0.386, 0.21, 0.63
-_D1, _D2, _D3, _D4 = 0.25, -0.1043, 0.1035, -0.03620000000000023
-_A21, _A31, _A32 = 1.544, 0.9466785280815826, 0.2557011698983284
-_A41, _A42, _A43 = 3.314825187068521, 2.896124015972201, 0.9986419139977817
-_A51, _A52, _A53, _A54 = 1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895
-_C21, _C31, _C32 = -5.6688, -2.430093356833875, -0.2063599157091915
-_C41, _C42, _C43 = -0.1073529058151375, -9.594562251023355, -20.47028614809616
-_C51, _C52, _C53, _C54 = 7.496443313967647, -10.24680431464352, -33.99990352819905, 11.7089089320616
-_C61, _C62, _C63 = 8.083246795921522, -7.981132988064893, -31.52159432874371
-_C64, _C65 = 16.31930543123136, -6.058818238834054
-_E21, _E22, _E23 = 10.12623508344586, -7.487995877610167, -34.80091861555747
-_E24, _E25 = -7.992771707568823, 1.025137723295662
-_E31, _E32, _E33 = -0.6762803392801253, 6.087714651680015, 16.43084320892478
-_E34, _E35 = 24.76722511418386, -6.594389125716872
-# Step-size control of rodas.f: h_new / h in [1/5, 6], safety factor 0.9.
-_FAC_SHRINK, _FAC_GROW, _SAFE = 5.0, 1.0 / 6.0, 0.9
-
-
-@njit(cache=True)
-def step_factor(err):
-    """Step-size divisor h / h_new from the scaled local error of an order-4(3) step (clamped)."""
-    return max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
-
-
-@njit(cache=True)
-def predictive_step(h, fac, err, h_acc, err_acc):
-    """Next step after an accepted one: Gustafsson's predictive controller (Hairer & Wanner IV.8),
-    never larger than the standard controller's ``h / fac``. ``h_acc``, ``err_acc``: previous accepted
-    step and its error."""
-    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE))
-    return h / max(fac, fac_g)
+__all__ = ["simulate_single_state", "solve_single_state", "solve_single_state_batch"]
 
 
 # ----------------------------------------------------------------------------- kernel internals
@@ -489,146 +489,3 @@ def simulate_single_state(
         what = f"B={b_const!r} Pa" if mode == 1 else f"alpha_V={alpha_v!r}, p_R={p_r!r} Pa"
         raise BayesDamperError(f"single-state solve failed ({what}): {STATUS_MESSAGES[int(status)]}")
     return dp
-
-
-def _python_rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, b_const):
-    """Plain-Python eq. (7) right-hand side, written independently of the kernel [Pa s^-1]."""
-    dp = x[0]
-    yp = yk + vel * (t - tk)
-    if b_const is None:
-        p_hi = p_r + abs(dp)
-        b_hi = b0 * (1.0 + alpha_v) / (alpha_v + b0 * p_r / (p_hi * p_hi))
-        b_lo = b0 * (1.0 + alpha_v) / (alpha_v + b0 / p_r)
-        b1, b2 = (b_hi, b_lo) if dp >= 0 else (b_lo, b_hi)
-    else:
-        b1 = b2 = b_const
-    c_l, c_q = (fl[0], fl[1]) if dp >= 0 else (fl[2], fl[3])
-    if c_q > 0:
-        q = math.copysign((-c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) / (2.0 * c_q), dp)
-    else:
-        q = dp / c_l
-    return [(b1 / (v01 - area * yp) + b2 / (v02 + area * yp)) * (area * vel - q)]
-
-
-def reference_single_state(
-    t_out: np.ndarray,
-    excitation: PiecewiseLinear,
-    damper: DamperConstants,
-    flow: FlowCoefficients,
-    dynamic: DynamicParameters | None,
-    *,
-    dp0: float = 0.0,
-    t0: float | None = None,
-    constant_bulk_modulus: float | None = None,
-    method: str = "Radau",
-    rtol: float = 1e-10,
-    atol: float = 1e-6,
-) -> np.ndarray:
-    """Eq. (7) by ``scipy.integrate.solve_ivp``: the slow independent reference.
-
-    Same arguments and time convention as :func:`simulate_single_state`; integrates knot segment by
-    knot segment (knots are breakpoints), eq. (8) in the paper's textbook form. ``method``,
-    ``rtol`` [-] and ``atol`` [Pa] go to ``solve_ivp``.
-
-    Returns
-    -------
-    ndarray, shape (n_t,)
-        Δp at ``t_out`` [Pa].
-    """
-    t_out, window = _prepare(t_out, excitation, t0)
-    if constant_bulk_modulus is None and dynamic is None:
-        raise SettingsError("single-state model needs DynamicParameters or a constant bulk modulus")
-    d = damper
-    alpha_v = dynamic.liquid_gas_ratio if dynamic is not None else 1.0
-    p_r = dynamic.reference_pressure if dynamic is not None else 1.0
-    consts = (d.piston_area, d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus,
-              flow.as_array().tolist(), alpha_v, p_r, constant_bulk_modulus)
-
-    def rhs(t, x, tk, yk, vel):
-        return _python_rhs(t, x, tk, yk, vel, *consts)
-
-    return _solve_ivp_segments(rhs, dp0, t_out, window, "reference single-state", method=method,
-                               rtol=rtol, atol=atol)[0]
-
-
-# ----------------------------------------------------------------------------- two-state reference
-@dataclass(frozen=True)
-class TwoStateSolution:
-    """Solution of the two-state model eq. (1) at the sample times.
-
-    Attributes
-    ----------
-    dp : ndarray, shape (n_t,)
-        Pressure difference Δp = p_1 - p_2 [Pa].
-    p1, p2 : ndarray, shape (n_t,)
-        Absolute pressures of CH1 and CH2 [Pa].
-    """
-
-    dp: np.ndarray
-    p1: np.ndarray
-    p2: np.ndarray
-
-
-def simulate_two_state(
-    t_out: np.ndarray,
-    excitation: PiecewiseLinear,
-    damper: DamperConstants,
-    flow: FlowCoefficients,
-    dynamic: DynamicParameters,
-    *,
-    dp0: float = 0.0,
-    t0: float | None = None,
-    accumulator_conductance: float = 1e-8,
-    rtol: float = 1e-8,
-    atol: float = 1e-3,
-) -> TwoStateSolution:
-    """Two-state reference model eq. (1) with an optional accumulator, by scipy ``Radau``.
-
-    ``dp_i/dt = (B(p_i)/V_i) (±(A_P dy_P/dt - Q_O) + Q_A,i)`` with B from eq. (3) (reference
-    pressure p_R, ratio α_V; written as ``B_0 (1+α_V) p^2 / (α_V p^2 + B_0 p_R)``, finite at p = 0),
-    Q_O from eq. (8) and the accumulator refill ``Q_A,i = G max(p_R - p_i, 0)`` through a check
-    valve of conductance G. The pressures start at ``p_1 = p_R + max(dp0, 0)``,
-    ``p_2 = p_R + max(-dp0, 0)`` (loaded chamber above p_R, the other at p_R, as eq. (6) assumes).
-
-    Parameters
-    ----------
-    t_out, excitation, damper, flow, dp0, t0
-        As for :func:`simulate_single_state`.
-    dynamic : DynamicParameters
-        α_V [-] and p_R [Pa]; p_R is also the accumulator pressure.
-    accumulator_conductance : float
-        Check-valve conductance G [m^3 s^-1 Pa^-1]; 0 disables the accumulator (pure eq. (1)).
-    rtol, atol : float
-        Relative [-] and absolute [Pa] tolerance of ``solve_ivp``.
-
-    Returns
-    -------
-    TwoStateSolution
-    """
-    if not (np.isfinite(accumulator_conductance) and accumulator_conductance >= 0):
-        raise SettingsError(f"accumulator conductance must be finite and >= 0, got {accumulator_conductance}")
-    t_out, window = _prepare(t_out, excitation, t0)
-    area, v01, v02 = damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2
-    b0, alpha_v, p_r = damper.liquid_bulk_modulus, dynamic.liquid_gas_ratio, dynamic.reference_pressure
-    g = float(accumulator_conductance)
-    fl = flow.as_array().tolist()
-
-    def bulk(p):
-        return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
-
-    def rhs(t, x, tk, yk, vel):
-        p1, p2 = x
-        yp = yk + vel * (t - tk)
-        dp = p1 - p2
-        c_l, c_q = (fl[0], fl[1]) if dp >= 0 else (fl[2], fl[3])
-        q = 2.0 * dp / (c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) if dp else 0.0
-        net = area * vel - q
-        return [bulk(p1) / (v01 - area * yp) * (net + g * max(p_r - p1, 0.0)),
-                bulk(p2) / (v02 + area * yp) * (-net + g * max(p_r - p2, 0.0))]
-
-    y_knots = window.knot_displacements  # ends at t_out[-1]; y_P is linear in between
-    if np.any(v01 - area * y_knots <= 0) or np.any(v02 + area * y_knots <= 0):
-        raise BayesDamperError("two-state solve failed: a chamber volume is <= 0 on the excitation")
-    x0 = [p_r + max(dp0, 0.0), p_r + max(-dp0, 0.0)]
-    out = _solve_ivp_segments(rhs, x0, t_out, window, "two-state", method="Radau", rtol=rtol, atol=atol)
-    return TwoStateSolution(dp=out[0] - out[1], p1=out[0], p2=out[1])

@@ -1,15 +1,9 @@
-"""Figures of the paper (3, 6, 8, 9) and per-transient posterior diagnostics.
+"""The paper's figures 3, 6, 8 and 9, with credible intervals where the paper has point estimates.
 
 Every function takes data (plain arrays, the package's dataclasses, ``summary.json`` entries) and
 returns a :class:`matplotlib.figure.Figure`; nothing is shown or written here (saving is
-:func:`bayesdamper.outputs.save_figure`). Matplotlib and corner are imported inside the functions, and
-figures are built without pyplot, so plotting leaves no global state behind.
-
-Display units: flow rate in 10^-6 m^3/s, pressure in MPa, force in kN, piston speed in mm/s. The
-multipliers from SI are the ``*_DISPLAY`` constants below, which tests use to read plotted data back.
-
-Colours and markers are shared by all figures: colour = flow direction (12: Δp > 0, 21: Δp < 0),
-marker = kind of velocity step (from rest or reversal).
+:func:`bayesdamper.io.outputs.save_figure`). Matplotlib is imported inside the functions. Display units,
+colours and markers: :mod:`bayesdamper.report.style`.
 """
 
 from __future__ import annotations
@@ -20,59 +14,22 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
+from bayesdamper.report.style import (
+    DIRECTION_STYLE,
+    FLOW_DISPLAY,
+    FORCE_DISPLAY,
+    KIND_MARKER,
+    NOT_CONVERGED_COLOR,
+    PRESSURE_DISPLAY,
+    SPEED_DISPLAY,
+    STATIC_BAND_SE,
+    _figure,
+    _groups,
+    _pct,
+    _plain_log_formatter,
+)
 
-__all__ = [
-    "corner_plot",
-    "figure3_static",
-    "figure6_parametric",
-    "figure8_transients",
-    "figure9_drift",
-    "parametric_curves",
-    "trace_rank_plot",
-]
-
-#: Multiplier from m^3/s to the displayed flow-rate unit, 10^-6 m^3/s.
-FLOW_DISPLAY = 1e6
-#: Multiplier from Pa to the displayed pressure unit, MPa.
-PRESSURE_DISPLAY = 1e-6
-#: Multiplier from N to the displayed force unit, kN.
-FORCE_DISPLAY = 1e-3
-#: Multiplier from m/s to the displayed piston-speed unit, mm/s.
-SPEED_DISPLAY = 1e3
-
-#: Half-width of the Figure 3 band about the fitted curve, in standard errors of the mean curve.
-STATIC_BAND_SE = 2.0
-
-#: Colour and label of each flow direction (sign of Δp after the step).
-DIRECTION_STYLE = {
-    1: {"color": "C0", "label": "12 (Δp > 0)"},
-    -1: {"color": "C3", "label": "21 (Δp < 0)"},
-}
-#: Marker of each kind of velocity step.
-KIND_MARKER = {"initial": "^", "reversal": "o"}
-#: Colour of transients whose sampler did not converge.
-NOT_CONVERGED_COLOR = "0.6"
-
-#: Axis label and display multiplier of each sampled parameter (unknown names: name, multiplier 1).
-PARAMETER_LABELS = {
-    "alpha_V": ("α_V [-]", 1.0),
-    "p_R_Pa": ("p_R [MPa]", PRESSURE_DISPLAY),
-    "phi": ("φ, AR(1) [-]", 1.0),
-}
-
-
-def _figure(figsize: tuple[float, float], layout: str | None = "constrained"):
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=figsize, layout=layout)
-
-
-def _pct(mass: float) -> str:
-    return f"{100 * mass:.0f}%"
-
-
-def _param_label(name: str) -> tuple[str, float]:
-    return PARAMETER_LABELS.get(name, (name, 1.0))
+__all__ = ["figure3_static", "figure6_parametric", "figure8_transients", "figure9_drift", "parametric_curves"]
 
 
 # --------------------------------------------------------------------------------------- Figure 3
@@ -82,7 +39,7 @@ def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAN
 
     Parameters
     ----------
-    static_fit : bayesdamper.static.StaticFit
+    static_fit : bayesdamper.inference.stage1.StaticFit
         Both directions' least-squares fits with their plateau points (Q [m^3/s], Δp [Pa]).
     n_grid : int
         Points of each fitted curve (the plateau flow rates are added to the grid, so the curve passes
@@ -131,24 +88,6 @@ def figure3_static(static_fit, *, n_grid: int = 200, band_se: float = STATIC_BAN
     ax.legend(loc="upper left", fontsize=8)
     ax.grid(alpha=0.3)
     return fig
-
-
-# --------------------------------------------------------------------------------------- Figure 9
-def _plain_log_formatter(**kwargs):
-    """Log-axis tick labels as plain numbers, on the ticks matplotlib's LogFormatter would label."""
-    from matplotlib.ticker import LogFormatter
-
-    class PlainLogFormatter(LogFormatter):
-        def __call__(self, x, pos=None):
-            return f"{x:g}" if super().__call__(x, pos) else ""
-
-    return PlainLogFormatter(**kwargs)
-
-
-def _groups(entries: Sequence[Mapping]) -> list[tuple[int, str]]:
-    present = {(int(e["direction"]), str(e["kind"])) for e in entries}
-    order = [(1, "initial"), (1, "reversal"), (-1, "initial"), (-1, "reversal")]
-    return [g for g in order if g in present] + sorted(present - set(order))
 
 
 def _drift_note(d: Mapping, name: str, credible_mass: float) -> str:
@@ -281,7 +220,7 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
 
     Parameters
     ----------
-    results : sequence of bayesdamper.identify.TransientResult
+    results : sequence of bayesdamper.inference.stage2.TransientResult
         Each with ``time`` (absolute) [s], ``force`` [N], ``band`` shape (3, n_times) [N],
         ``ls_force`` [N] and ``entry`` (``id``, ``t_start_s``, ``J``, ``ls["J"]``, ``direction``,
         ``converged``).
@@ -341,142 +280,6 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
     return fig
 
 
-# --------------------------------------------------------------------------- posterior diagnostics
-def _flat_display(result) -> tuple[np.ndarray, list[str]]:
-    chains = np.asarray(result.chains, dtype=float)
-    flat = chains.reshape(-1, chains.shape[-1])
-    labels, scales = zip(*(_param_label(n) for n in result.names), strict=True)
-    return flat * np.array(scales), list(labels)
-
-
-def corner_plot(result, *, bins: int = 20, max_samples: int | None = 20000, credible_mass: float = 0.9):
-    """Corner plot of one transient's posterior, with the Nelder-Mead point as truth lines.
-
-    Parameters
-    ----------
-    result : bayesdamper.identify.TransientResult
-        ``chains`` shape (n_chains, n_draws, ndim) in physical units, ``names``, ``entry["ls"]``.
-    bins : int
-        Histogram bins per parameter (fewer draw faster).
-    max_samples : int, optional
-        Thin the flattened draws evenly to at most this many (speed); None keeps all.
-    credible_mass : float
-        Mass of the equal-tailed interval marked on the 1-D histograms and in their titles.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        ndim x ndim axes (corner.py's layout); p_R shown in MPa.
-    """
-    import corner
-
-    flat, labels = _flat_display(result)
-    if max_samples is not None and flat.shape[0] > max_samples:
-        flat = flat[:: math.ceil(flat.shape[0] / max_samples)]
-    ls = result.entry.get("ls", {})
-    truths = []
-    for name in result.names:
-        _, scale = _param_label(name)
-        truths.append(ls[name] * scale if name in ls else None)
-    ranges = []
-    for col in flat.T:
-        lo, hi = float(np.min(col)), float(np.max(col))
-        pad = 1e-3 * max(abs(lo), 1.0) if hi <= lo else 0.0
-        ranges.append((lo - pad, hi + pad))
-    q = [0.5 - credible_mass / 2, 0.5, 0.5 + credible_mass / 2]
-    k = flat.shape[1]
-    fig = _figure((2.3 * k + 0.4, 2.3 * k + 0.4), layout=None)
-    corner.corner(flat, fig=fig, bins=bins, labels=labels, truths=truths, truth_color="C3", range=ranges,
-                  quantiles=q, show_titles=False, label_kwargs={"fontsize": 9}, plot_datapoints=False,
-                  smooth=1.0, max_n_ticks=4)
-    # Plain-text titles (corner's own use mathtext, whose parsing dominates the drawing time).
-    lo, med, hi = np.quantile(flat, q, axis=0)
-    grid = np.array(fig.axes).reshape(k, k)
-    diag = grid.diagonal()
-    for i, j in zip(*np.triu_indices(k, 1), strict=True):
-        fig.delaxes(grid[i, j])  # corner leaves the upper triangle as blank axes; drop them
-    for ax, label, a, m, b in zip(diag, labels, lo, med, hi, strict=True):
-        name = label.split(" [")[0]
-        ax.set_title(f"{name} = {m:.3g}\n[{a:.3g}, {b:.3g}] ({_pct(credible_mass)})", fontsize=8)
-    fig.suptitle(f"{result.entry.get('id', '')}: posterior (red: Nelder-Mead point)", y=1.02, fontsize=10)
-    return fig
-
-
-def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, bins: int = 20):
-    """Trace of a few walkers per ensemble and rank histograms per ensemble, one row per parameter.
-
-    Parameters
-    ----------
-    result : bayesdamper.identify.TransientResult
-        ``chains`` shape (n_chains, n_draws, ndim), walkers ensemble-major: chain ``c`` belongs to
-        ensemble ``c // (n_chains // n_ensembles)``.
-    n_ensembles : int
-        Number of independently started ensembles; must divide n_chains.
-    walkers_per_ensemble : int
-        Walkers traced per ensemble.
-    bins : int
-        Bins of the rank histograms. For a converged run every ensemble's histogram is flat about
-        the dashed line (its expected count).
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        2 x ndim axes: column 0 traces, column 1 rank histograms.
-    """
-    chains = np.asarray(result.chains, dtype=float)
-    n_chains, n_draws, ndim = chains.shape
-    if n_ensembles < 1 or n_chains % n_ensembles:
-        raise ValueError(f"{n_chains} chains cannot be split into {n_ensembles} equal ensembles")
-    from matplotlib.ticker import MaxNLocator, NullLocator
-    from scipy.stats import rankdata
-
-    n_walkers = n_chains // n_ensembles
-    shown = min(walkers_per_ensemble, n_walkers)
-    # Fixed margins rather than a layout engine: one of these is drawn per transient of every run.
-    height = 2.0 * ndim + 0.9
-    fig = _figure((10.0, height), layout=None)
-    fig.subplots_adjust(left=0.09, right=0.98, top=1 - 0.6 / height, bottom=0.45 / height, hspace=0.12,
-                        wspace=0.12)
-    axes = fig.subplots(ndim, 2, squeeze=False, width_ratios=[2.2, 1], sharex="col")
-    draw = np.arange(n_draws)
-    edges = np.linspace(0.5, n_chains * n_draws + 0.5, bins + 1)
-    expected = n_walkers * n_draws / bins
-    for k, name in enumerate(result.names):
-        label, scale = _param_label(name)
-        ax = axes[k, 0]
-        for e in range(n_ensembles):
-            for w in range(shown):
-                ax.plot(draw, chains[e * n_walkers + w, :, k] * scale, color=f"C{e % 10}", lw=0.6,
-                        alpha=0.8, label=f"ensemble {e + 1}" if w == 0 else None)
-        ax.set_ylabel(label, fontsize=9)
-        ax.grid(alpha=0.3)
-        ranks = rankdata(chains[:, :, k].ravel()).reshape(n_chains, n_draws)
-        counts = [np.histogram(ranks[e * n_walkers:(e + 1) * n_walkers], edges)[0]
-                  for e in range(n_ensembles)]
-        height = 1.15 * max(expected, max(c.max() for c in counts))
-        axr = axes[k, 1]
-        for e, c in enumerate(counts):
-            axr.stairs(c + e * height, edges, baseline=e * height, fill=True, color=f"C{e % 10}", alpha=0.7)
-            axr.axhline(e * height + expected, color="k", ls="--", lw=0.7)
-        # ensembles are told apart by colour (legend of the trace panel); few ticks keep drawing fast
-        axr.yaxis.set_major_locator(NullLocator())
-        axr.xaxis.set_major_locator(MaxNLocator(3))
-        axr.set_xlim(edges[0], edges[-1])
-        axr.tick_params(axis="x", labelsize=7)
-        ax.yaxis.set_major_locator(MaxNLocator(4))
-    axes[-1, 0].set_xlabel("draw (after burn-in, thinned) [-]")
-    axes[-1, 1].set_xlabel("rank among all draws [-]")
-    axes[0, 0].set_title(f"traces, {shown} walker(s) per ensemble", fontsize=9)
-    axes[0, 1].set_title("rank histograms per ensemble (bottom: 1)", fontsize=9)
-    ent = result.entry
-    state = "" if "converged" not in ent else (", converged" if ent["converged"] else ", NOT converged")
-    fig.suptitle(f"{ent.get('id', '')}: R-hat max {ent.get('rhat_max', float('nan')):.3f}, "
-                 f"bulk ESS min {ent.get('ess_bulk_min', float('nan')):.0f}{state}",
-                 fontsize=10, color="k" if ent.get("converged", True) else "C3")
-    axes[0, 0].legend(loc="upper right", fontsize=7, ncols=min(n_ensembles, 4))
-    return fig
-
-
 # --------------------------------------------------------------------------------------- Figure 6
 def parametric_curves(velocity: float = 1.5e-3, *, t_end: float = 3.0, n_times: int = 601,
                       damper: DamperConstants = RIG_A_DAMPER, flow: FlowCoefficients = PAPER_FLOW,
@@ -497,7 +300,7 @@ def parametric_curves(velocity: float = 1.5e-3, *, t_end: float = 3.0, n_times: 
         {1/α_V [-]: force [N] at ``fixed_p_r``}.
     """
     from bayesdamper.physics.excitation import PiecewiseLinear
-    from bayesdamper.physics.model import simulate_single_state
+    from bayesdamper.physics.single_state import simulate_single_state
 
     t = np.linspace(0.0, t_end, n_times)
     exc = PiecewiseLinear.triangle(amplitude, velocity, rest=0.0, cycles=1.25)
@@ -560,41 +363,4 @@ def figure6_parametric(velocity: float = 1.5e-3, *, curves: Mapping | None = Non
     ax_p.set_title(f"(a) p_R varied, α_V = 1/{1 / c['fixed_alpha_v']:.3g}, V_P = {v:.3g} mm/s", fontsize=10)
     ax_a.set_title(f"(b) α_V varied, p_R = {c['fixed_p_r_Pa'] * PRESSURE_DISPLAY:.3g} MPa, "
                    f"V_P = {v:.3g} mm/s", fontsize=10)
-    return fig
-
-
-def residual_figure(rows: Sequence[Mapping], *, title: str | None = None):
-    """Residual F_C − F_E [kN] against time since the step, before (top) and after (bottom) the loop.
-
-    Parameters
-    ----------
-    rows : sequence of mappings
-        One per transient: ``kind``, ``direction``, ``velocity_m_s``, ``t`` (time since step [s],
-        ndarray), ``before`` and ``after`` (residuals [N], ndarrays).
-    """
-    import matplotlib as mpl
-
-    groups = [("initial", 1), ("reversal", -1), ("reversal", 1)]
-    fig = _figure((13.0, 6.5))
-    axes = fig.subplots(2, 3, sharex=True, sharey="row")
-    v = np.array([r["velocity_m_s"] for r in rows])
-    norm = mpl.colors.Normalize(v.min() * 1e3, v.max() * 1e3)
-    cmap = mpl.colormaps["viridis"]
-    for j, (kind, d) in enumerate(groups):
-        for r in rows:
-            if r["kind"] != kind or r["direction"] != d:
-                continue
-            c = cmap(norm(r["velocity_m_s"] * 1e3))
-            axes[0, j].plot(r["t"], np.asarray(r["before"]) / 1e3, color=c, lw=0.6)
-            axes[1, j].plot(r["t"], np.asarray(r["after"]) / 1e3, color=c, lw=0.6)
-        axes[0, j].set_title(f"{kind}, direction {d:+d}")
-        axes[1, j].set_xlabel("time since step [s]")
-    axes[0, 0].set_ylabel("residual before [kN]")
-    axes[1, 0].set_ylabel("residual after [kN]")
-    for ax in axes.flat:
-        ax.grid(alpha=0.3)
-        ax.axhline(0.0, color="k", lw=0.5)
-    fig.colorbar(mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="piston speed [mm/s]")
-    if title:
-        fig.suptitle(title)
     return fig

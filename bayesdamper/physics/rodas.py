@@ -1,0 +1,104 @@
+"""RODAS4 shared by the compiled kernels: coefficients, step-size control, tolerances and status codes.
+
+RODAS4 (Hairer & Wanner, Solving ODEs II, sec. IV.7; coefficients of rodas.f, METH=1): six stages, order
+4(3), L-stable and stiffly accurate, with the order-3 dense output of rodas.f and the Gustafsson step
+predictor. Both the eq. (7) kernel (:mod:`~bayesdamper.physics.single_state`) and the augmented kernel
+(:mod:`~bayesdamper.physics.augmented`) take their stage arithmetic, dense output and step control from here.
+
+Status codes of the kernels (``STATUS_MESSAGES`` maps them to text): 0 success (output finite),
+1 non-finite state, 2 step-size underflow, 3 maximum number of steps exceeded, 4 a chamber volume
+<= 0 on the excitation, 5 invalid input (times, tolerances or parameters).
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+#: Default relative tolerance of the kernel: rel. L2 error <= 6e-6 over the prior box (benchmarks/forward.py).
+DEFAULT_RTOL = 1e-6
+
+
+#: Default absolute tolerance of the kernel [Pa] (4e-5 N on rig A; dominates only for |Δp| < 1e4 Pa).
+DEFAULT_ATOL = 1e-2
+
+
+#: Maximum number of accepted steps of one kernel solve.
+MAX_STEPS = 20_000
+
+
+STATUS_OK, STATUS_NONFINITE, STATUS_STEP_UNDERFLOW = 0, 1, 2
+
+
+STATUS_MAX_STEPS, STATUS_VOLUME, STATUS_BAD_INPUT = 3, 4, 5
+
+
+STATUS_MESSAGES = {
+    STATUS_OK: "success",
+    STATUS_NONFINITE: "the pressure difference became non-finite",
+    STATUS_STEP_UNDERFLOW: "the step size underflowed",
+    STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed",
+    STATUS_VOLUME: "a chamber volume is <= 0 on the excitation",
+    STATUS_BAD_INPUT: "invalid times, tolerances or parameters",
+}
+
+
+# RODAS4 coefficients (rodas.f, METH = 1); _E2j, _E3j are its dense-output D2j, D3j.
+_GAMMA, _C2, _C3, _C4 = 0.25, 0.386, 0.21, 0.63
+
+
+_D1, _D2, _D3, _D4 = 0.25, -0.1043, 0.1035, -0.03620000000000023
+
+
+_A21, _A31, _A32 = 1.544, 0.9466785280815826, 0.2557011698983284
+
+
+_A41, _A42, _A43 = 3.314825187068521, 2.896124015972201, 0.9986419139977817
+
+
+_A51, _A52, _A53, _A54 = 1.221224509226641, 6.019134481288629, 12.53708332932087, -0.687886036105895
+
+
+_C21, _C31, _C32 = -5.6688, -2.430093356833875, -0.2063599157091915
+
+
+_C41, _C42, _C43 = -0.1073529058151375, -9.594562251023355, -20.47028614809616
+
+
+_C51, _C52, _C53, _C54 = 7.496443313967647, -10.24680431464352, -33.99990352819905, 11.7089089320616
+
+
+_C61, _C62, _C63 = 8.083246795921522, -7.981132988064893, -31.52159432874371
+
+
+_C64, _C65 = 16.31930543123136, -6.058818238834054
+
+
+_E21, _E22, _E23 = 10.12623508344586, -7.487995877610167, -34.80091861555747
+
+
+_E24, _E25 = -7.992771707568823, 1.025137723295662
+
+
+_E31, _E32, _E33 = -0.6762803392801253, 6.087714651680015, 16.43084320892478
+
+
+_E34, _E35 = 24.76722511418386, -6.594389125716872
+
+
+# Step-size control of rodas.f: h_new / h in [1/5, 6], safety factor 0.9.
+_FAC_SHRINK, _FAC_GROW, _SAFE = 5.0, 1.0 / 6.0, 0.9
+
+
+@njit(cache=True)
+def step_factor(err):
+    """Step-size divisor h / h_new from the scaled local error of an order-4(3) step (clamped)."""
+    return max(_FAC_GROW, min(_FAC_SHRINK, err**0.25 / _SAFE))
+
+
+@njit(cache=True)
+def predictive_step(h, fac, err, h_acc, err_acc):
+    """Next step after an accepted one: Gustafsson's predictive controller (Hairer & Wanner IV.8),
+    never larger than the standard controller's ``h / fac``. ``h_acc``, ``err_acc``: previous accepted
+    step and its error."""
+    fac_g = max(_FAC_GROW, min(_FAC_SHRINK, (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE))
+    return h / max(fac, fac_g)

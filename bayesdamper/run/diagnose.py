@@ -1,0 +1,192 @@
+"""The ``diagnose`` job: baseline, residual structure, candidate effects, the select-and-refit loop, the final
+model calibrated with uncertainty, and ``diagnosis.json`` with its figures.
+
+The computations live in :mod:`bayesdamper.diagnosis`; this module orders them, re-uses the baseline
+posteriors of an ``identify`` run of the same settings, and writes the results.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j
+from bayesdamper.diagnosis.loop import (
+    SELECT_DELTA_BIC,
+    FixedEffectsProblem,
+    _friction_corrected_static,
+    _residuals_at_medians,
+    calibrate_with,
+    report_text,
+    select_effects,
+)
+from bayesdamper.diagnosis.residual import (
+    SMOOTH_S,
+    STRUCTURE_ALPHA,
+    describe_residual,
+    plateau_noise,
+    structure_test,
+    summarise_structure,
+)
+
+
+def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
+    """Baseline results stored by ``identify`` in ``out_dir/posteriors`` under the same settings
+    fingerprint (None where a transient has no such file)."""
+    from bayesdamper.run.outfolder import _load_finished, fingerprint_basis, settings_fingerprint
+
+    post_dir = out_dir / "posteriors"
+    if not post_dir.is_dir():
+        return [None] * len(transients)
+    fp = settings_fingerprint(fingerprint_basis(settings.as_dict(), tmax, seed, dataset_sha256))
+    return [_load_finished(post_dir / f"{tr.id}.nc", tr, fp) for tr in transients]
+
+
+def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
+                  workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
+                  max_steps: int | None = None, figures: bool = True, quiet: bool = False,
+                  tests: list[str] | None = None) -> dict:
+    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model.
+
+    ``tests`` restricts the run to the named records (file stems) of the data set.
+    """
+    from bayesdamper.core.errors import SettingsError
+    from bayesdamper.inference.problem import TransientProblem
+    from bayesdamper.inference.sampling import SamplerSettings
+    from bayesdamper.inference.stage2 import StageTwoSettings
+    from bayesdamper.io.outputs import atomic_write_json, versions
+    from bayesdamper.physics.effect_vector import pack_effects
+    from bayesdamper.physics.effects import EFFECTS
+    from bayesdamper.physics.with_effects import AugmentedProblem
+    from bayesdamper.run.progress import Progress
+    from bayesdamper.run.stages import drift_summary, identify_all, prepare
+
+    t0 = time.perf_counter()
+    names = list(EFFECTS) if not effects else list(effects)
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    ds, segs, transients, static = prepare(data_dir, tmax)
+    if tests:
+        missing = set(tests) - {s.record.name for s in segs}
+        if missing:
+            raise SettingsError(f"--tests: no record(s) named {', '.join(sorted(missing))} in {ds.path}")
+        segs = tuple(s for s in segs if s.record.name in tests)
+        transients = [t for t in transients if t.test in tests]
+    workers = workers if workers > 0 else (os.cpu_count() or 1)
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    progress = Progress(False if quiet else None)
+    sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
+    settings = StageTwoSettings(credible_mass=credible_mass, sampler=sampler)
+    prov = {"dataset": ds.name, "input_sha256": ds.input_hashes(), "versions": versions(), "seed": seed}
+    noise = plateau_noise(segs)
+
+    # 1. the calibrated baseline: re-used from `identify` posteriors in OUT of the same settings, if any
+    base = _reuse_baseline(out_dir, transients, settings, tmax, seed, ds.sha256)
+    todo = [i for i, r in enumerate(base) if r is None]
+    if len(todo) < len(base):
+        progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
+    if todo:
+        progress("diagnose: calibrating the eq. (7) baseline")
+        fresh = identify_all([transients[i] for i in todo], ds.damper, static.coefficients, settings, seed,
+                             workers, None, prov, progress)
+        for i, r in zip(todo, fresh, strict=True):
+            base[i] = r
+    base_problems = [TransientProblem.from_transient(tr, ds.damper, static.coefficients) for tr in transients]
+    base_resid = _residuals_at_medians(base, base_problems)
+    rows = []
+    for tr, res, r in zip(transients, base, base_resid, strict=True):
+        rate = 1.0 / float(np.median(np.diff(tr.time)))
+        row = {"id": tr.id, "test": tr.test, "kind": tr.kind, "direction": tr.direction,
+               "velocity_m_s": tr.velocity, "J": res.entry["J"]}
+        row.update(structure_test(r, rate, noise))
+        row.update(describe_residual(tr.time - tr.t_step, r, tr.force, rate))
+        rows.append(row)
+    structure = summarise_structure(rows)
+    structure["parameters_by_kind_median"] = {
+        kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
+               for name in ("alpha_V", "p_R_Pa")}
+        for kind in ("initial", "reversal") if any(r.entry["kind"] == kind for r in base)}
+
+    # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient
+    rec = {s.record.name: s for s in segs}
+    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients) for tr in transients]
+    warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
+    engine = ProfileEngine(aug, warm, workers)
+    plateaus = [p for s in segs for p in s.plateaus]
+
+    def flow_for(e):
+        if "friction" in e and e["friction"].get("coulomb_N", 0.0) > 0:
+            return _friction_corrected_static(plateaus, ds.damper.piston_area, e["friction"]["coulomb_N"],
+                                              str(ds.path)).coefficients
+        return None
+
+    forces = [p.force for p in aug]
+    try:
+        selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress)
+    finally:
+        engine.close()
+
+    # 3. the final model, calibrated with uncertainty like the baseline
+    if selected:
+        progress(f"diagnose: calibrating the final model with {', '.join(selected)}")
+        flow_final = flow_for(fixed) or static.coefficients
+        eff = pack_effects(fixed)
+        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final), eff) for a in aug]
+        final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
+                               progress)
+        final_resid = _residuals_at_medians(final, final_problems)
+    else:
+        final, final_resid = base, base_resid
+    forces = [tr.force for tr in transients]
+    base_entries = [r.entry for r in base]
+    final_entries = [r.entry for r in final]
+    after_rows = []
+    for tr, r in zip(transients, final_resid, strict=True):
+        rate = 1.0 / float(np.median(np.diff(tr.time)))
+        after_rows.append(structure_test(r, rate, noise) | describe_residual(tr.time - tr.t_step, r, tr.force, rate)
+                          | {"id": tr.id, "velocity_m_s": tr.velocity, "direction": tr.direction, "kind": tr.kind})
+    per_velocity = {}
+    for v in sorted({round(tr.velocity, 6) for tr in transients}):
+        idx = [i for i, tr in enumerate(transients) if round(tr.velocity, 6) == v]
+        per_velocity[f"{v * 1e3:.2f}"] = {
+            "before": pooled_j([base_resid[i] for i in idx], [forces[i] for i in idx]),
+            "after": pooled_j([final_resid[i] for i in idx], [forces[i] for i in idx])}
+    diagnosis = {
+        "dataset": ds.name,
+        "noise_N": noise["sigma_N"],
+        "noise": noise,
+        "baseline": {"J_pooled": pooled_j(base_resid, forces), "J": {e["id"]: e["J"] for e in base_entries}},
+        "candidates": rounds[0]["candidates"] if rounds else [],
+        "rounds": rounds,
+        "selected": selected,
+        "selected_params": fixed,
+        "final": {"J_pooled": pooled_j(final_resid, forces), "J": {e["id"]: e["J"] for e in final_entries}},
+        "J_pooled_by_velocity_mm_s": per_velocity,
+        "drift_before": drift_summary(base_entries, credible_mass, seed),
+        "drift_after": drift_summary(final_entries, credible_mass, seed),
+        "structure_before": {"summary": structure, "transients": rows},
+        "structure_after": {"summary": summarise_structure(after_rows), "transients": after_rows},
+        "criterion": {"name": "delta_BIC_eff", "select_at_or_below": SELECT_DELTA_BIC,
+                      "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs plateau noise, "
+                                        f"alpha {STRUCTURE_ALPHA}"},
+        "final_segments": final_entries,
+        "settings": settings.as_dict(), "seed": seed, "effects_considered": names, "provenance": prov,
+    }
+    if figures:
+        from bayesdamper.report.figures import write_diagnosis_figures
+
+        diagnosis["figures"] = write_diagnosis_figures(out_dir, transients, base, final, base_resid, final_resid,
+                                                       diagnosis)
+    diagnosis["report_text"] = report_text(diagnosis)
+    diagnosis["wall_time_s"] = time.perf_counter() - t0
+    atomic_write_json(out_dir / "diagnosis.json", diagnosis)
+    if not quiet:
+        print(diagnosis["report_text"])
+        print(f"diagnosis written to {out_dir / 'diagnosis.json'}; wall time {diagnosis['wall_time_s']:.1f} s")
+    return diagnosis

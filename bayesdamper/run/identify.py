@@ -1,0 +1,253 @@
+"""The ``identify`` job: load -> segment -> stage 1 -> stage 2 -> outputs, for one or more data sets.
+
+Each function validates everything it can *before* it writes anything, so a run that fails on bad
+input leaves an existing output folder as it was. The output folder, its fingerprint and resume:
+:mod:`bayesdamper.run.outfolder`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+
+from bayesdamper.core.errors import SettingsError
+from bayesdamper.inference.likelihood import make_noise_model
+from bayesdamper.inference.sampling import SamplerSettings
+from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
+from bayesdamper.io.outputs import atomic_write_json, versions
+from bayesdamper.run.outfolder import (
+    POSTERIORS_DIR,
+    RUN_FILE,
+    SUMMARY_FILE,
+    _clear,
+    _load_finished,
+    _remove_temporaries,
+    check_output_folder,
+    fingerprint_basis,
+    settings_fingerprint,
+)
+from bayesdamper.run.progress import Progress
+from bayesdamper.run.stages import data_table, drift_summary, identify_all, prepare
+
+
+def _bounds(values, name: str) -> tuple[float, float] | None:
+    if values is None:
+        return None
+    if len(values) != 2 or not (0 < values[0] < values[1]) or not np.all(np.isfinite(values)):
+        raise SettingsError(f"{name}: expected LOW,HIGH with 0 < LOW < HIGH, got {values}")
+    return (float(values[0]), float(values[1]))
+
+
+def dataset_folder(name: str) -> str:
+    """A file-name-safe folder name for a data set called ``name``."""
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "dataset"
+    return safe
+
+
+@dataclass
+class _Job:
+    """One data set of an ``identify`` run: validated, nothing written yet."""
+
+    ds: object
+    segs: list
+    transients: list
+    static: object
+    out_dir: Path
+    basis: dict
+    fingerprint: str
+
+
+def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps) -> StageTwoSettings:
+    make_noise_model(noise_model)  # validate before any work
+    if max_steps is not None and max_steps < 1:
+        raise SettingsError(f"--max-steps must be a positive number of steps, got {max_steps}")
+    sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
+    kw = {}
+    if (b := _bounds(alpha_v_prior, "--alpha-v-prior")) is not None:
+        kw["alpha_v_bounds"] = b
+    if (b := _bounds(p_r_prior, "--p-r-prior")) is not None:
+        kw["p_r_bounds"] = b
+    settings = StageTwoSettings(credible_mass=credible_mass, noise_model=noise_model, sampler=sampler, **kw)
+    settings.space()
+    return settings
+
+
+def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: int, tmax: float,
+          only: str | None, force: bool) -> list[_Job]:
+    """Load, segment and fit stage 1 for every data set; check the output folders. Writes nothing."""
+    prepared = [prepare(d, tmax) for d in data_dirs]
+    if only:
+        wanted = {s.strip() for s in only.split(",") if s.strip()}
+        unknown = wanted - {t.id for p in prepared for t in p[2]}
+        if unknown:
+            raise SettingsError(f"--only: unknown segment id(s) {', '.join(sorted(unknown))}")
+        prepared = [(ds, segs, [t for t in trs if t.id in wanted], st) for ds, segs, trs, st in prepared]
+    out_root = Path(out)
+    if out_root.exists() and not out_root.is_dir():
+        raise SettingsError(f"{out_root}: exists and is not a folder")
+    if len(prepared) == 1:
+        outs = [out_root]
+    else:
+        names = [dataset_folder(p[0].name) for p in prepared]
+        for i, n in enumerate(names):
+            if n in names[:i]:
+                j = names.index(n)
+                raise SettingsError(f"{data_dirs[j]}, {data_dirs[i]}: both data sets are called {n!r}; "
+                                    "give them distinct [damper] names")
+        outs = [out_root / n for n in names]
+    jobs = []
+    for (ds, segs, trs, static), out_dir in zip(prepared, outs, strict=True):
+        if not trs:
+            continue
+        basis = fingerprint_basis(settings.as_dict(), tmax, seed, ds.sha256)
+        check_output_folder(out_dir, basis, force)
+        jobs.append(_Job(ds, segs, trs, static, out_dir, basis, settings_fingerprint(basis)))
+    if not jobs:
+        raise SettingsError("no transient to identify")
+    return jobs
+
+
+def _now() -> str:
+    return datetime.now(UTC).isoformat(timespec="seconds")
+
+
+def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_mass: float, tmax: float,
+                  workers: int, figures: bool, force: bool, client, scheduler: str | None) -> dict:
+    """Stage 2 and the outputs of one validated data set (the only step that writes)."""
+    t0 = time.perf_counter()
+    ds, out_dir = job.ds, job.out_dir
+    if force:
+        _clear(out_dir)
+    post_dir = out_dir / POSTERIORS_DIR
+    post_dir.mkdir(parents=True, exist_ok=True)
+    progress = Progress()
+    if (n := _remove_temporaries(out_dir)):
+        progress(f"removed {n} temporary file(s) left by an interrupted run")
+    prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
+            "dataset_sha256": ds.sha256, "versions": versions(), "tmax_s": tmax, "run_seed": seed,
+            "settings_fingerprint": job.fingerprint}
+    run = {"fingerprint": job.fingerprint, "fingerprint_basis": job.basis,
+           "fingerprint_of": "sha256 of the canonical JSON (sorted keys, no spaces) of fingerprint_basis",
+           "status": "running", "started_utc": _now(), "dataset": ds.name, "dataset_path": str(ds.path),
+           "input_sha256": ds.input_hashes(), "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax,
+           "versions": prov["versions"], "workers": workers, "scheduler": scheduler,
+           "transients": [t.id for t in job.transients]}
+    atomic_write_json(out_dir / RUN_FILE, run)
+
+    results: list[TransientResult | None] = [
+        _load_finished(post_dir / f"{tr.id}.nc", tr, job.fingerprint) for tr in job.transients]
+    resumed = [tr.id for tr, r in zip(job.transients, results, strict=True) if r is not None]
+    if resumed:
+        print(f"resumed {len(resumed)} finished transient(s) from {post_dir}", file=sys.stderr, flush=True)
+    todo = [i for i, r in enumerate(results) if r is None]
+    progress(f"stage 1 done; sampling {len(todo)} transient(s) on "
+             + (f"the cluster at {scheduler}" if client is not None else f"{workers} worker(s)"))
+    from bayesdamper.inference.stage2 import N_STATIC_DRAWS, STATIC_NEGLIGIBLE_RATIO
+
+    draws = job.static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
+    fresh = identify_all([job.transients[i] for i in todo], ds.damper, job.static.coefficients, settings,
+                         seed, workers, post_dir, prov, progress, draws, client=client)
+    for i, r in zip(todo, fresh, strict=True):
+        results[i] = r
+    entries = [r.entry for r in results]
+    ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")] for e in entries])
+    summary = {
+        "dataset": ds.name, "credible_mass": credible_mass,
+        "static": job.static.intervals(credible_mass),
+        "segments": entries,
+        "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
+        "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
+        "n_converged": int(sum(e["converged"] for e in entries)),
+        "static_uncertainty": {
+            "method": f"optimum re-fitted under {N_STATIC_DRAWS} draws of the stage-1 coefficients; ratio = "
+                      "sd of the optima / posterior sd (log parameters)",
+            "max_ratio": {"alpha_V": float(np.nanmax(ratios[:, 0])),
+                          "p_R_Pa": float(np.nanmax(ratios[:, 1]))},
+            "median_ratio": {"alpha_V": float(np.nanmedian(ratios[:, 0])),
+                             "p_R_Pa": float(np.nanmedian(ratios[:, 1]))},
+            "threshold": STATIC_NEGLIGIBLE_RATIO,
+            "negligible": bool(all(e["static_sensitivity"]["negligible"] for e in entries)),
+        },
+        "data": data_table(ds, job.segs),
+    }
+    if figures:
+        from bayesdamper.report.figures import write_identify_figures
+
+        summary["figures"] = write_identify_figures(out_dir, ds, job.segs, job.static, results, summary,
+                                                    workers=workers)
+    wall = time.perf_counter() - t0
+    summary["wall_time_s"] = wall
+    atomic_write_json(out_dir / SUMMARY_FILE, summary)
+    run.update(status="complete", finished_utc=_now(), resumed=resumed,
+               computed=[job.transients[i].id for i in todo], wall_time_s=wall)
+    atomic_write_json(out_dir / RUN_FILE, run)
+    n_ok = summary["n_converged"]
+    print(f"identified {len(entries)} transient(s) of {ds.name!r}: {n_ok} converged, "
+          f"{len(entries) - n_ok} not" + (f" ({len(resumed)} resumed)" if resumed else "")
+          + f"; results in {out_dir}; wall time {wall:.1f} s")
+    return summary
+
+
+def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: str, *, seed: int = 0,
+                 credible_mass: float = 0.9, tmax: float = 3.0, workers: int = 0, noise_model: str = "ar1",
+                 alpha_v_prior=None, p_r_prior=None, max_steps: int | None = None, only: str | None = None,
+                 figures: bool = True, force: bool = False,
+                 scheduler: str | None = None) -> dict | list[dict]:
+    """``bayesdamper identify``: stage 1 and Bayesian stage 2 for every transient; write OUT.
+
+    Parameters
+    ----------
+    data_dir : path or sequence of paths
+        One data-set folder (results go into ``out``) or several (each into ``out/<data-set name>``).
+    out : str
+        Output folder. If it already holds results of the same settings (fingerprint of the stage-2
+        settings, ``tmax``, ``seed`` and the input files), finished transients are resumed; of
+        different settings, SettingsError unless ``force``, which clears the old results first.
+    scheduler : str, optional
+        Address of a Dask scheduler (``tcp://host:8786``) to run the transients on instead of
+        ``workers`` local processes.
+
+    Returns
+    -------
+    dict or list of dict
+        The summary (``summary.json``) of a single ``data_dir`` path; a list of them, in order, for a
+        sequence.
+
+    Raises
+    ------
+    DataError, SettingsError
+        Before anything is written, for any bad input, setting or output folder.
+    """
+    single = isinstance(data_dir, str | os.PathLike)
+    dirs = [data_dir] if single else list(data_dir)
+    if not dirs:
+        raise SettingsError("no data-set folder given")
+    settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps)
+    jobs = _plan(dirs, out, settings, seed, tmax, only, force)
+    workers = workers if workers > 0 else (os.cpu_count() or 1)
+    client = None
+    if scheduler:
+        from bayesdamper.run.distributed import connect
+
+        client = connect(scheduler)
+    try:
+        summaries = [_identify_one(job, settings, seed=seed, credible_mass=credible_mass, tmax=tmax,
+                                   workers=workers, figures=figures, force=force, client=client,
+                                   scheduler=scheduler) for job in jobs]
+    finally:
+        if client is not None:
+            client.close()
+    return summaries[0] if single else summaries
+
+
+def identify_out_dir(out: str | Path, summary: dict, n_datasets: int) -> Path:
+    """The folder :func:`run_identify` wrote ``summary`` into."""
+    return Path(out) if n_datasets == 1 else Path(out) / dataset_folder(summary["dataset"])

@@ -1,0 +1,144 @@
+"""The steps every job shares: load -> segment -> stage 1 (``prepare``), stage 2 over many transients on
+worker processes (``identify_all``), drift with speed, and the table that describes a data set.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from bayesdamper.inference.drift import fit_drift
+from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
+from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.inference.stage1 import fit_static
+from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult, identify_transient
+from bayesdamper.io.dataset import load_dataset
+from bayesdamper.io.segmentation import segment_dataset
+from bayesdamper.run.progress import Progress
+
+
+def prepare(data_dir: str | Path, tmax: float):
+    """Load, validate and segment a data set; fit stage 1. Raises DataError on bad input."""
+    ds = load_dataset(data_dir, tmax=tmax)
+    segs = segment_dataset(ds, tmax=tmax)
+    transients = [t for s in segs for t in s.transients]
+    plateaus = [p for s in segs for p in s.plateaus]
+    static = fit_static(plateaus, source=str(ds.path))
+    return ds, segs, transients, static
+
+
+def _worker(args) -> TransientResult:
+    tr, damper, flow, settings, seed, nc, prov, draws = args
+    return identify_transient(tr, damper, flow, settings, seed, nc, prov, static_draws=draws)
+
+
+def _pool(workers: int):
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+
+
+def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings) -> float:
+    """Compile, or load from numba's on-disk cache, the kernels stage 2 calls; return the seconds spent.
+
+    One log-posterior evaluation and one forward solve at the centre of the prior box, in this
+    process. Run before a pool of worker processes starts, so the cache exists and forked workers
+    inherit the compiled code instead of each compiling it again.
+    """
+    t0 = time.perf_counter()
+    problem = TransientProblem.from_transient(transient, damper, flow)
+    space = settings.space()
+    centre = (space.lower + space.upper) / 2
+    LogPosterior(problem, make_noise_model(settings.noise_model), space).batch(centre[None, :])
+    problem.simulate_force(*space.to_physical(centre[None, :])[0, :2])
+    return time.perf_counter() - t0
+
+
+def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int, workers: int,
+                 posterior_dir: Path | None, provenance: dict, progress: Progress,
+                 static_draws: np.ndarray | None = None, *, client=None) -> list[TransientResult]:
+    """Stage 2 for every transient, on ``workers`` processes or a Dask cluster; results in input order.
+
+    ``static_draws`` (rows of [C_L12, C_Q12, C_L21, C_Q21] from stage 1) switch on the check of how
+    much the stage-1 uncertainty moves each transient's optimum. ``client`` (a connected
+    ``dask.distributed.Client``) sends the tasks to its cluster instead of the local pool.
+    """
+    tasks = [(tr, damper, flow, settings, seed,
+              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws)
+             for tr in transients]
+    results: list[TransientResult | None] = [None] * len(tasks)
+
+    def report(i: int, res: TransientResult, done: int) -> None:
+        e = res.entry
+        state = "converged" if e["converged"] else "NOT converged"
+        progress(f"[{done}/{len(tasks)}] {e['id']}: {state}, R-hat {e['rhat_max']:.3f}, "
+                 f"ESS {e['ess_bulk_min']:.0f}, τ_max {max(e['tau'].values()):.0f}, {e['wall_s']:.1f} s")
+
+    if not tasks:
+        return []
+    if client is not None:
+        from bayesdamper.run.distributed import map_transients
+
+        return map_transients(client, tasks, report)
+    if workers <= 1 or len(tasks) == 1:
+        for i, task in enumerate(tasks):
+            progress(f"sampling {task[0].id} ...")
+            results[i] = _worker(task)
+            report(i, results[i], i + 1)
+    else:
+        # Compile (or load) the numba kernels once here: forked workers inherit them, and the on-disk
+        # cache exists for spawned ones, instead of every worker compiling the same code at once.
+        progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings):.1f} s")
+        with _pool(workers) as ex:
+            futs = {ex.submit(_worker, task): i for i, task in enumerate(tasks)}
+            try:
+                for done, fut in enumerate(as_completed(futs), 1):
+                    i = futs[fut]
+                    results[i] = fut.result()
+                    report(i, results[i], done)
+            except BaseException:  # interrupted or failed: do not start the queued transients
+                ex.shutdown(wait=True, cancel_futures=True)
+                raise
+    return results  # type: ignore[return-value]
+
+
+def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
+    """Slope of α_V and p_R against piston speed for all transients (and per direction)."""
+    out = {}
+    ok = [e for e in entries if e["converged"]] or entries
+    for name in ("alpha_V", "p_R_Pa"):
+        v = np.array([e["velocity_m_s"] for e in ok])
+        m = np.array([e["posterior_mean"][name] for e in ok])
+        s = np.array([e["posterior_sd"][name] for e in ok])
+        res = fit_drift(v, m, s, credible_mass, seed)
+        res["by_direction"] = {}
+        for d in (1, -1):
+            sel = np.array([e["direction"] == d for e in ok])
+            if sel.sum() >= 3 and np.ptp(v[sel]) > 0:
+                res["by_direction"][str(d)] = fit_drift(v[sel], m[sel], s[sel], credible_mass, seed)
+        res["n_transients"] = int(len(ok))
+        out[name] = res
+    return out
+
+
+def data_table(ds, segs) -> dict:
+    """The data set and its segmentation as plain values (for ``summary.json`` and the report)."""
+    plateau = {(p.test, p.index): p for s in segs for p in s.plateaus}
+    steps = []
+    for s in segs:
+        for st in s.steps:
+            p = plateau.get((s.record.name, st.index))
+            steps.append({
+                "test": s.record.name, "index": int(st.index), "kind": st.kind,
+                "direction": int(st.direction), "velocity_m_s": float(abs(st.velocity_after)),
+                "t_step_s": float(st.time), "force_N": float(st.force),
+                "plateau_force_N": (float(np.sign(st.direction) * p.pressure_drop * ds.damper.piston_area)
+                                    if p else None)})
+    records = [{"name": r.name, "file": r.path.name, "n_samples": int(r.time.size),
+                "sample_rate_Hz": float(r.sample_rate), "duration_s": r.duration, "sha256": r.sha256}
+               for r in ds.records]
+    return {"damper": asdict(ds.damper), "records": records, "steps": steps}
