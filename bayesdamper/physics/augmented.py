@@ -40,7 +40,6 @@ import math
 import numpy as np
 from numba import njit
 
-from bayesdamper.physics import rodas as _m
 from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
 from bayesdamper.physics.effect_vector import _SLOT_PARAM, EFFECT_SLOTS
 from bayesdamper.physics.effects.friction import friction_force_scalar
@@ -48,6 +47,7 @@ from bayesdamper.physics.effects.inertia import CORNER_TIME_S
 from bayesdamper.physics.effects.valve_dynamics import steady_opening
 from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
 from bayesdamper.physics.rodas import (
+    _GAMMA,
     STATUS_BAD_INPUT,
     STATUS_MAX_STEPS,
     STATUS_MESSAGES,
@@ -55,30 +55,15 @@ from bayesdamper.physics.rodas import (
     STATUS_OK,
     STATUS_STEP_UNDERFLOW,
     STATUS_VOLUME,
+    dense_coefficients,
+    dense_slope,
+    dense_value,
+    predictive_step,
+    stage_point,
+    stage_rhs,
+    stage_time,
+    step_factor,
 )
-
-# RODAS4 coefficients and step control shared with the eq. (7) kernel (single_state.py).
-_GAMMA, _C2, _C3, _C4, _D1, _D2, _D3, _D4 = _m._GAMMA, _m._C2, _m._C3, _m._C4, _m._D1, _m._D2, _m._D3, _m._D4
-
-
-_A21, _A31, _A32, _A41, _A42, _A43 = _m._A21, _m._A31, _m._A32, _m._A41, _m._A42, _m._A43
-
-
-_A51, _A52, _A53, _A54 = _m._A51, _m._A52, _m._A53, _m._A54
-
-
-_C21, _C31, _C32, _C41, _C42, _C43 = _m._C21, _m._C31, _m._C32, _m._C41, _m._C42, _m._C43
-
-
-_C51, _C52, _C53, _C54, _C61, _C62, _C63, _C64, _C65 = (_m._C51, _m._C52, _m._C53, _m._C54, _m._C61, _m._C62,
-                                                        _m._C63, _m._C64, _m._C65)
-
-
-_E21, _E22, _E23, _E24, _E25 = _m._E21, _m._E22, _m._E23, _m._E24, _m._E25
-
-
-_E31, _E32, _E33, _E34, _E35 = _m._E31, _m._E32, _m._E33, _m._E34, _m._E35
-
 
 __all__ = ["MAX_STEPS", "solve_augmented"]
 
@@ -384,45 +369,46 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                     last = False
                     continue
                 idet = 1.0 / det
-                # stage i: solve [[m00, -j01], [-j10, m11]] k = r
-                r0 = f0 + h * _D1 * ft
-                r1 = f1
+                # stage i: solve [[m00, -j01], [-j10, m11]] k = r (the valve state has no explicit t-dependence)
+                r0 = stage_rhs(1, f0, h, ft, 0.0, 0.0, 0.0, 0.0, 0.0)
+                r1 = stage_rhs(1, f1, h, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
                 k10 = (m11 * r0 + j01 * r1) * idet
                 k11 = (j10 * r0 + m00 * r1) * idet
-                a0, a1 = _rhs(t + _C2 * h, x + _A21 * k10, xv + _A21 * k11, ts, ys, va, es, area, v01, v02,
+                a0, a1 = _rhs(stage_time(2, t, h), stage_point(2, x, k10, 0.0, 0.0, 0.0),
+                              stage_point(2, xv, k11, 0.0, 0.0, 0.0), ts, ys, va, es, area, v01, v02,
                               b0, fl, alpha_v, p_r, b_base, comp, lag_tau, vmode, vtau, vp)
-                r0 = a0 + h * _D2 * ft + (_C21 * k10) / h
-                r1 = a1 + (_C21 * k11) / h
+                r0 = stage_rhs(2, a0, h, ft, k10, 0.0, 0.0, 0.0, 0.0)
+                r1 = stage_rhs(2, a1, h, 0.0, k11, 0.0, 0.0, 0.0, 0.0)
                 k20 = (m11 * r0 + j01 * r1) * idet
                 k21 = (j10 * r0 + m00 * r1) * idet
-                a0, a1 = _rhs(t + _C3 * h, x + _A31 * k10 + _A32 * k20, xv + _A31 * k11 + _A32 * k21, ts, ys,
-                              va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base, comp, lag_tau, vmode,
-                              vtau, vp)
-                r0 = a0 + h * _D3 * ft + (_C31 * k10 + _C32 * k20) / h
-                r1 = a1 + (_C31 * k11 + _C32 * k21) / h
+                a0, a1 = _rhs(stage_time(3, t, h), stage_point(3, x, k10, k20, 0.0, 0.0),
+                              stage_point(3, xv, k11, k21, 0.0, 0.0), ts, ys, va, es, area, v01, v02,
+                              b0, fl, alpha_v, p_r, b_base, comp, lag_tau, vmode, vtau, vp)
+                r0 = stage_rhs(3, a0, h, ft, k10, k20, 0.0, 0.0, 0.0)
+                r1 = stage_rhs(3, a1, h, 0.0, k11, k21, 0.0, 0.0, 0.0)
                 k30 = (m11 * r0 + j01 * r1) * idet
                 k31 = (j10 * r0 + m00 * r1) * idet
-                a0, a1 = _rhs(t + _C4 * h, x + _A41 * k10 + _A42 * k20 + _A43 * k30,
-                              xv + _A41 * k11 + _A42 * k21 + _A43 * k31, ts, ys, va, es, area, v01, v02, b0,
-                              fl, alpha_v, p_r, b_base, comp, lag_tau, vmode, vtau, vp)
-                r0 = a0 + h * _D4 * ft + (_C41 * k10 + _C42 * k20 + _C43 * k30) / h
-                r1 = a1 + (_C41 * k11 + _C42 * k21 + _C43 * k31) / h
+                a0, a1 = _rhs(stage_time(4, t, h), stage_point(4, x, k10, k20, k30, 0.0),
+                              stage_point(4, xv, k11, k21, k31, 0.0), ts, ys, va, es, area, v01, v02,
+                              b0, fl, alpha_v, p_r, b_base, comp, lag_tau, vmode, vtau, vp)
+                r0 = stage_rhs(4, a0, h, ft, k10, k20, k30, 0.0, 0.0)
+                r1 = stage_rhs(4, a1, h, 0.0, k11, k21, k31, 0.0, 0.0)
                 k40 = (m11 * r0 + j01 * r1) * idet
                 k41 = (j10 * r0 + m00 * r1) * idet
-                xs0 = x + _A51 * k10 + _A52 * k20 + _A53 * k30 + _A54 * k40
-                xs1 = xv + _A51 * k11 + _A52 * k21 + _A53 * k31 + _A54 * k41
+                xs0 = stage_point(5, x, k10, k20, k30, k40)
+                xs1 = stage_point(5, xv, k11, k21, k31, k41)
                 a0, a1 = _rhs(t + h, xs0, xs1, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base,
                               comp, lag_tau, vmode, vtau, vp)
-                r0 = a0 + (_C51 * k10 + _C52 * k20 + _C53 * k30 + _C54 * k40) / h
-                r1 = a1 + (_C51 * k11 + _C52 * k21 + _C53 * k31 + _C54 * k41) / h
+                r0 = stage_rhs(5, a0, h, ft, k10, k20, k30, k40, 0.0)
+                r1 = stage_rhs(5, a1, h, 0.0, k11, k21, k31, k41, 0.0)
                 k50 = (m11 * r0 + j01 * r1) * idet
                 k51 = (j10 * r0 + m00 * r1) * idet
                 xs0 += k50
                 xs1 += k51
                 a0, a1 = _rhs(t + h, xs0, xs1, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base,
                               comp, lag_tau, vmode, vtau, vp)
-                r0 = a0 + (_C61 * k10 + _C62 * k20 + _C63 * k30 + _C64 * k40 + _C65 * k50) / h
-                r1 = a1 + (_C61 * k11 + _C62 * k21 + _C63 * k31 + _C64 * k41 + _C65 * k51) / h
+                r0 = stage_rhs(6, a0, h, ft, k10, k20, k30, k40, k50)
+                r1 = stage_rhs(6, a1, h, 0.0, k11, k21, k31, k41, k51)
                 k60 = (m11 * r0 + j01 * r1) * idet
                 k61 = (j10 * r0 + m00 * r1) * idet
                 x_new = xs0 + k60
@@ -434,7 +420,7 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                     last = False
                     reject = True
                     continue
-                fac = _m.step_factor(err)
+                fac = step_factor(err)
                 h_new = h / fac
                 if err > 1.0:
                     reject = True
@@ -444,17 +430,16 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                 n_steps += 1
                 n_acc_seg += 1
                 if n_acc_seg > 1:
-                    h_new = _m.predictive_step(h, fac, err, h_acc, err_acc)
+                    h_new = predictive_step(h, fac, err, h_acc, err_acc)
                 h_acc = h
                 err_acc = max(0.01, err)
                 t_new = tb if last else t + h
                 # dense output of rodas.f (order 3) for Δp and its time derivative
-                cd3 = _E21 * k10 + _E22 * k20 + _E23 * k30 + _E24 * k40 + _E25 * k50
-                cd4 = _E31 * k10 + _E32 * k20 + _E33 * k30 + _E34 * k40 + _E35 * k50
+                cd3, cd4 = dense_coefficients(k10, k20, k30, k40, k50)
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
-                    dp_s = x * (1.0 - s) + s * (x_new + (1.0 - s) * (cd3 + s * cd4))
-                    ddp_s = (x_new - x + (1.0 - 2.0 * s) * cd3 + s * (2.0 - 3.0 * s) * cd4) / h
+                    dp_s = dense_value(x, x_new, cd3, cd4, s)
+                    ddp_s = dense_slope(x, x_new, cd3, cd4, s, h)
                     out[i_out] = _force_out(dp_s, ddp_s, t_out[i_out], ts, ys, va, es, vfs, area, comp,
                                             lag_tau, eff)
                     i_out += 1

@@ -102,3 +102,71 @@ def predictive_step(h, fac, err, h_acc, err_acc):
     step and its error."""
     fac_g = max(_FAC_GROW, min(_FAC_SHRINK, (h_acc / h) * (err * err / err_acc) ** 0.25 / _SAFE))
     return h / max(fac, fac_g)
+
+
+# ----------------------------------------------------------------------------- stage arithmetic
+# Written once for every kernel. Each helper works on one state component, so a kernel with n states calls
+# it per component; ``inline="always"`` makes numba inline them, and the literal stage number folds away.
+
+
+@njit(cache=True, inline="always")
+def stage_time(i, t, h):
+    """Time of stage ``i`` (2..6) of the step (t, h)."""
+    if i == 2:
+        return t + _C2 * h
+    if i == 3:
+        return t + _C3 * h
+    if i == 4:
+        return t + _C4 * h
+    return t + h
+
+
+@njit(cache=True, inline="always")
+def stage_point(i, x, k1, k2, k3, k4):
+    """State at which stage ``i`` (2..5) evaluates the right-hand side: x + sum_j a_ij k_j."""
+    if i == 2:
+        return x + _A21 * k1
+    if i == 3:
+        return x + _A31 * k1 + _A32 * k2
+    if i == 4:
+        return x + _A41 * k1 + _A42 * k2 + _A43 * k3
+    return x + _A51 * k1 + _A52 * k2 + _A53 * k3 + _A54 * k4
+
+
+@njit(cache=True, inline="always")
+def stage_rhs(i, f, h, ft, k1, k2, k3, k4, k5):
+    """Right-hand side of the linear system of stage ``i`` (1..6): f + h d_i dF/dt + sum_j c_ij k_j / h.
+
+    The stage increment is then k_i = (1/(h γ) - J)^-1 times this; ``ft`` is the explicit time derivative
+    of the component's right-hand side (0 where it has none)."""
+    if i == 1:
+        return f + h * _D1 * ft
+    if i == 2:
+        return f + h * _D2 * ft + (_C21 * k1) / h
+    if i == 3:
+        return f + h * _D3 * ft + (_C31 * k1 + _C32 * k2) / h
+    if i == 4:
+        return f + h * _D4 * ft + (_C41 * k1 + _C42 * k2 + _C43 * k3) / h
+    if i == 5:
+        return f + (_C51 * k1 + _C52 * k2 + _C53 * k3 + _C54 * k4) / h
+    return f + (_C61 * k1 + _C62 * k2 + _C63 * k3 + _C64 * k4 + _C65 * k5) / h
+
+
+@njit(cache=True, inline="always")
+def dense_coefficients(k1, k2, k3, k4, k5):
+    """The two coefficients of the order-3 dense output of rodas.f on an accepted step."""
+    cd3 = _E21 * k1 + _E22 * k2 + _E23 * k3 + _E24 * k4 + _E25 * k5
+    cd4 = _E31 * k1 + _E32 * k2 + _E33 * k3 + _E34 * k4 + _E35 * k5
+    return cd3, cd4
+
+
+@njit(cache=True, inline="always")
+def dense_value(x, x_new, cd3, cd4, s):
+    """Dense output at the fraction ``s`` in [0, 1] of the accepted step from x to x_new."""
+    return x * (1.0 - s) + s * (x_new + (1.0 - s) * (cd3 + s * cd4))
+
+
+@njit(cache=True, inline="always")
+def dense_slope(x, x_new, cd3, cd4, s, h):
+    """Time derivative of :func:`dense_value` (step length ``h``)."""
+    return (x_new - x + (1.0 - 2.0 * s) * cd3 + s * (2.0 - 3.0 * s) * cd4) / h

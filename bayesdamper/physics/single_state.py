@@ -43,48 +43,6 @@ from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_mod
 from bayesdamper.physics.excitation import PiecewiseLinear
 from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
 from bayesdamper.physics.rodas import (
-    _A21,
-    _A31,
-    _A32,
-    _A41,
-    _A42,
-    _A43,
-    _A51,
-    _A52,
-    _A53,
-    _A54,
-    _C2,
-    _C3,
-    _C4,
-    _C21,
-    _C31,
-    _C32,
-    _C41,
-    _C42,
-    _C43,
-    _C51,
-    _C52,
-    _C53,
-    _C54,
-    _C61,
-    _C62,
-    _C63,
-    _C64,
-    _C65,
-    _D1,
-    _D2,
-    _D3,
-    _D4,
-    _E21,
-    _E22,
-    _E23,
-    _E24,
-    _E25,
-    _E31,
-    _E32,
-    _E33,
-    _E34,
-    _E35,
     _GAMMA,
     DEFAULT_ATOL,
     DEFAULT_RTOL,
@@ -96,7 +54,12 @@ from bayesdamper.physics.rodas import (
     STATUS_OK,
     STATUS_STEP_UNDERFLOW,
     STATUS_VOLUME,
+    dense_coefficients,
+    dense_value,
     predictive_step,
+    stage_point,
+    stage_rhs,
+    stage_time,
     step_factor,
 )
 
@@ -299,22 +262,22 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                     last = False
                     continue
                 inv = 1.0 / e
-                k1 = (f0 + h * _D1 * ft) * inv
-                f = _rhs(t + _C2 * h, x + _A21 * k1, tk, yk, vel, area, v01, v02, b0, fl, alpha_v,
-                         p_r, bulk_mode, b_base)
-                k2 = (f + h * _D2 * ft + (_C21 * k1) / h) * inv
-                f = _rhs(t + _C3 * h, x + _A31 * k1 + _A32 * k2, tk, yk, vel, area, v01, v02, b0, fl,
-                         alpha_v, p_r, bulk_mode, b_base)
-                k3 = (f + h * _D3 * ft + (_C31 * k1 + _C32 * k2) / h) * inv
-                f = _rhs(t + _C4 * h, x + _A41 * k1 + _A42 * k2 + _A43 * k3, tk, yk, vel, area, v01,
-                         v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
-                k4 = (f + h * _D4 * ft + (_C41 * k1 + _C42 * k2 + _C43 * k3) / h) * inv
-                xs = x + _A51 * k1 + _A52 * k2 + _A53 * k3 + _A54 * k4
+                k1 = stage_rhs(1, f0, h, ft, 0.0, 0.0, 0.0, 0.0, 0.0) * inv
+                f = _rhs(stage_time(2, t, h), stage_point(2, x, k1, 0.0, 0.0, 0.0), tk, yk, vel, area, v01, v02,
+                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k2 = stage_rhs(2, f, h, ft, k1, 0.0, 0.0, 0.0, 0.0) * inv
+                f = _rhs(stage_time(3, t, h), stage_point(3, x, k1, k2, 0.0, 0.0), tk, yk, vel, area, v01, v02,
+                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k3 = stage_rhs(3, f, h, ft, k1, k2, 0.0, 0.0, 0.0) * inv
+                f = _rhs(stage_time(4, t, h), stage_point(4, x, k1, k2, k3, 0.0), tk, yk, vel, area, v01, v02,
+                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                k4 = stage_rhs(4, f, h, ft, k1, k2, k3, 0.0, 0.0) * inv
+                xs = stage_point(5, x, k1, k2, k3, k4)
                 f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
-                k5 = (f + (_C51 * k1 + _C52 * k2 + _C53 * k3 + _C54 * k4) / h) * inv
+                k5 = stage_rhs(5, f, h, ft, k1, k2, k3, k4, 0.0) * inv
                 xs += k5
                 f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
-                k6 = (f + (_C61 * k1 + _C62 * k2 + _C63 * k3 + _C64 * k4 + _C65 * k5) / h) * inv
+                k6 = stage_rhs(6, f, h, ft, k1, k2, k3, k4, k5) * inv
                 x_new = xs + k6
                 n_rhs += 5
                 err = abs(k6) / (atol + rtol * max(abs(x), abs(x_new)))
@@ -339,11 +302,9 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                 err_acc = max(0.01, err)
                 t_new = tb if last else t + h
                 # dense output of rodas.f (order 3) on [t, t_new]
-                cd3 = _E21 * k1 + _E22 * k2 + _E23 * k3 + _E24 * k4 + _E25 * k5
-                cd4 = _E31 * k1 + _E32 * k2 + _E33 * k3 + _E34 * k4 + _E35 * k5
+                cd3, cd4 = dense_coefficients(k1, k2, k3, k4, k5)
                 while i_out < n_t and t_out[i_out] <= t_new:
-                    s = (t_out[i_out] - t) / h
-                    out[i_out] = x * (1.0 - s) + s * (x_new + (1.0 - s) * (cd3 + s * cd4))
+                    out[i_out] = dense_value(x, x_new, cd3, cd4, (t_out[i_out] - t) / h)
                     i_out += 1
                 x = x_new
                 t = t_new
