@@ -1,11 +1,42 @@
-"""Command line: parses arguments and calls the library. No logic lives here."""
+"""The ``bayesdamper`` command: parses arguments and calls :mod:`bayesdamper.run`. No logic lives here."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from bayesdamper._version import __version__
 from bayesdamper.core.errors import BayesDamperError
+
+DESCRIPTION = """\
+Identify liquid-damper models from displacement-force tests and say how sure the identification is.
+
+bayesdamper reads a data set (a folder with damper.toml and one CSV per test: time [s], displacement [m],
+force [N]), cuts its triangular tests into plateaus and transients, fits the static orifice coefficients of
+eq. (8) from the plateaus (stage 1), samples the posterior of the liquid-gas ratio alpha_V and the reference
+pressure p_R of eq. (6) for every transient with emcee (stage 2), checks convergence, and diagnoses what the
+single-state model eq. (7) misses."""
+
+EPILOG = """\
+examples:
+  bayesdamper check data/rig-A                      validate, segment, fit stage 1
+  bayesdamper report data/rig-A --out results/rig-A  identify + diagnose + HTML report (the main job)
+  bayesdamper identify data/rig-A --out OUT --only tri_1p50mm_s_s0
+  bayesdamper diagnose data/rig-A --out OUT          re-uses OUT's posteriors of the same settings
+
+Errors are one line on stderr with exit status 2; nothing in --out is written before the inputs are
+validated. Long runs show a progress bar on a terminal and one summary line per phase otherwise."""
+
+
+class _UsageError(Exception):
+    """A command-line usage error: reported by :func:`main` as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (and exit status 2), like every other error."""
+
+    def error(self, message: str):
+        raise _UsageError(f"{message} (see '{self.prog} --help')")
 
 
 def _floats(text: str) -> list[float]:
@@ -33,66 +64,112 @@ def _mass(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="bayesdamper", description=__doc__.splitlines()[0] if __doc__ else None)
-    sub = p.add_subparsers(dest="command", required=True)
+    from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS
+    from bayesdamper.inference.sampling import SamplerSettings
 
-    c = sub.add_parser("check", help="validate and segment a data set; stage 1 and the Nelder-Mead fit")
-    c.add_argument("data_dir")
-    c.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
-    c.add_argument("--no-fit", action="store_true", help="only validate and segment")
+    max_steps = SamplerSettings().max_steps
+    p = _Parser(prog="bayesdamper", description=DESCRIPTION, epilog=EPILOG,
+                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
 
-    s = sub.add_parser("simulate", help="write a synthetic data set with known truth")
-    s.add_argument("out_dir")
-    s.add_argument("--velocities", type=_floats, default=[0.5, 1.0, 1.5], help="piston speeds [mm/s]")
-    s.add_argument("--alpha-v", type=_positive_float, default=1 / 0.03, help="liquid-gas ratio α_V [-]")
-    s.add_argument("--p-r", type=_positive_float, default=3.0e5, help="reference pressure p_R [Pa]")
-    s.add_argument("--noise-n", type=float, default=20.0, help="force noise standard deviation [N]")
-    s.add_argument("--noise-phi", type=float, default=0.0, help="AR(1) coefficient of the noise [-]")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--sample-rate", type=_positive_float, default=250.0, help="[Hz]")
-    s.add_argument("--model", choices=["eq7", "two-state"], default="eq7")
-    s.add_argument("--force", action="store_true", help="overwrite an existing data set in OUT_DIR")
+    c = sub.add_parser("check", help="validate and segment a data set; stage 1 and a Nelder-Mead fit",
+                       description="Validate and segment a data set, print its tests and transients, fit stage 1 "
+                                   "and a Nelder-Mead point estimate per transient. Writes nothing.")
+    c.add_argument("data_dir", help="data-set folder (damper.toml and the test CSVs)")
+    c.add_argument("--tmax", type=_positive_float, default=3.0,
+                   help="transient window length after each velocity step [s] (default: %(default)s)")
+    c.add_argument("--no-fit", action="store_true", help="only validate and segment (default: also fit)")
+
+    s = sub.add_parser("simulate", help="write a synthetic data set with known truth",
+                       description="Write a synthetic triangular-test data set (eq. (7) or the two-state model, "
+                                   "optionally with effects) and its truth.json.")
+    s.add_argument("out_dir", help="folder to create")
+    s.add_argument("--velocities", type=_floats, default=[0.5, 1.0, 1.5],
+                   help="comma-separated piston speeds [mm/s] (default: 0.5,1.0,1.5)")
+    s.add_argument("--alpha-v", type=_positive_float, default=1 / 0.03,
+                   help="liquid-gas ratio alpha_V [-] (default: 33.3)")
+    s.add_argument("--p-r", type=_positive_float, default=3.0e5,
+                   help="reference pressure p_R [Pa] (default: %(default).0f)")
+    s.add_argument("--noise-n", type=float, default=20.0,
+                   help="force noise standard deviation [N] (default: %(default)s)")
+    s.add_argument("--noise-phi", type=float, default=0.0,
+                   help="AR(1) lag-1 coefficient of the noise [-] (default: %(default)s, white)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the noise [-] (default: %(default)s)")
+    s.add_argument("--sample-rate", type=_positive_float, default=250.0,
+                   help="sample rate [Hz] (default: %(default)s)")
+    s.add_argument("--model", choices=["eq7", "two-state"], default="eq7",
+                   help="generating model (default: %(default)s)")
+    s.add_argument("--force", action="store_true", help="overwrite an existing data set in OUT_DIR (default: refuse)")
     s.add_argument("--effect", action="append", default=None, metavar="NAME[:param=value,...]",
                    help="inject an effect (repeatable), e.g. friction:coulomb_N=150; unspecified "
-                        "parameters take their defaults")
+                        "parameters take their defaults (default: none)")
 
-    for name, text in (("identify", "stage 1 + Bayesian stage 2 for every transient (resumable)"),
-                       ("report", "identify, then diagnose (if available), then OUT/report.html")):
-        i = sub.add_parser(name, help=text)
+    for name, text, desc in (
+            ("identify", "stage 1 + Bayesian stage 2 for every transient (resumable)",
+             "Stage 1 from the plateaus, then emcee posteriors of alpha_V and p_R for every transient, with "
+             "convergence checks, drift with speed and the paper's figures. Resumable: finished transients "
+             "of the same settings in --out are read back, not re-sampled."),
+            ("report", "identify, then diagnose, then OUT/report.html (the main job)",
+             "Identify, diagnose and write OUT/report.html: the main job.")):
+        i = sub.add_parser(name, help=text, description=desc)
         i.add_argument("data_dir", nargs="+", help="data-set folder(s); several go to OUT/<data-set name>/")
-        i.add_argument("--out", required=True)
-        i.add_argument("--seed", type=int, default=0)
-        i.add_argument("--credible-mass", type=_mass, default=0.9)
-        i.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
-        i.add_argument("--workers", type=int, default=0, help="worker processes (0: all cores)")
-        i.add_argument("--scheduler", default=None,
-                       help="Dask scheduler address (tcp://host:8786): run the transients on that cluster")
-        i.add_argument("--noise-model", default="ar1", help="ar1 (default) or white")
-        i.add_argument("--alpha-v-prior", type=_floats, default=None, help="LOW,HIGH bounds of α_V [-]")
-        i.add_argument("--p-r-prior", type=_floats, default=None, help="LOW,HIGH bounds of p_R [Pa]")
-        i.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
-        i.add_argument("--only", default=None, help="comma-separated segment ids to run (default: all)")
-        i.add_argument("--no-figures", action="store_true")
+        i.add_argument("--out", required=True, help="output folder (required; created if missing)")
+        i.add_argument("--seed", type=int, default=0,
+                       help="seed of every random choice of the run [-] (default: %(default)s)")
+        i.add_argument("--credible-mass", type=_mass, default=0.9,
+                       help="probability mass of the reported credible intervals, in (0, 1) [-] "
+                            "(default: %(default)s)")
+        i.add_argument("--tmax", type=_positive_float, default=3.0,
+                       help="transient window length after each velocity step [s] (default: %(default)s)")
+        i.add_argument("--workers", type=int, default=0,
+                       help="worker processes [-] (default: %(default)s = all cores)")
+        i.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="Dask scheduler address (tcp://host:8786): run the transients on that cluster "
+                            "(default: local worker processes)")
+        i.add_argument("--noise-model", default="ar1", choices=["ar1", "white"],
+                       help="noise model of the eq. (9) likelihood (default: %(default)s)")
+        i.add_argument("--alpha-v-prior", type=_floats, default=None, metavar="LOW,HIGH",
+                       help="log-uniform prior bounds of alpha_V [-] (default: {:g},{:g})".format(*ALPHA_V_BOUNDS))
+        i.add_argument("--p-r-prior", type=_floats, default=None, metavar="LOW,HIGH",
+                       help="log-uniform prior bounds of p_R [Pa] (default: {:g},{:g})".format(*P_R_BOUNDS))
+        i.add_argument("--max-steps", type=int, default=None,
+                       help=f"emcee step budget per ensemble [steps] (default: {max_steps})")
+        i.add_argument("--only", default=None, metavar="IDS",
+                       help="comma-separated transient ids to run (default: all)")
+        i.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
         i.add_argument("--force", action="store_true",
-                       help="clear results of different settings in OUT instead of refusing")
+                       help="clear results of different settings in OUT instead of refusing (default: refuse)")
 
-    g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit")
-    g.add_argument("data_dir")
-    g.add_argument("--out", required=True)
-    g.add_argument("--seed", type=int, default=0)
-    g.add_argument("--effects", default=None,
-                   help="comma-separated candidate effects (default: all of friction, backlash, actuator_lag, "
-                        "valve_dynamics, series_compliance, inertia)")
-    g.add_argument("--workers", type=int, default=0, help="worker processes (0: all cores)")
-    g.add_argument("--tmax", type=_positive_float, default=3.0, help="transient window length [s]")
-    g.add_argument("--credible-mass", type=_mass, default=0.9)
-    g.add_argument("--max-steps", type=int, default=None, help="step budget per ensemble")
-    g.add_argument("--no-figures", action="store_true")
+    from bayesdamper.physics.effects import EFFECTS
+
+    g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit",
+                       description="Calibrate eq. (7), test its residuals for structure, fit candidate effects, "
+                                   "select by the stated criterion, refit and report J before and after.")
+    g.add_argument("data_dir", help="data-set folder")
+    g.add_argument("--out", required=True,
+                   help="output folder (required); identify posteriors of the same settings there are re-used")
+    g.add_argument("--seed", type=int, default=0,
+                   help="seed of every random choice of the run [-] (default: %(default)s)")
+    g.add_argument("--effects", default=None, metavar="NAMES",
+                   help=f"comma-separated candidate effects (default: all of {', '.join(EFFECTS)})")
+    g.add_argument("--workers", type=int, default=0, help="worker processes [-] (default: %(default)s = all cores)")
+    g.add_argument("--tmax", type=_positive_float, default=3.0,
+                   help="transient window length after each velocity step [s] (default: %(default)s)")
+    g.add_argument("--credible-mass", type=_mass, default=0.9,
+                   help="probability mass of the reported credible intervals [-] (default: %(default)s)")
+    g.add_argument("--max-steps", type=int, default=None,
+                   help=f"emcee step budget per ensemble [steps] (default: {max_steps})")
+    g.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except _UsageError as err:
+        print(f"bayesdamper: error: {err}", file=sys.stderr)
+        return 2
     try:
         if args.command == "check":
             from bayesdamper.run.check import run_check

@@ -130,3 +130,73 @@ def test_simulate_then_identify_one_transient(tmp_path):
     assert seg["kind"] == "initial" and seg["direction"] == 1
     assert seg["alpha_V"]["lo"] <= truth["alpha_V"] <= seg["alpha_V"]["hi"]
     assert (out / "posteriors" / "tri_1p00mm_s_s0.nc").exists()
+
+
+# ----------------------------------------------------------------------------- the command line as a user meets it
+
+
+def test_help_describes_the_tool_not_the_source_file():
+    proc = run("--help")
+    assert proc.returncode == 0, proc.stderr
+    assert "Identify liquid-damper models" in proc.stdout
+    assert "No logic lives here" not in proc.stdout
+    for command in ("check", "simulate", "identify", "report", "diagnose"):
+        assert command in proc.stdout
+    assert "examples:" in proc.stdout
+
+
+def test_version():
+    from bayesdamper import __version__
+
+    proc = run("--version")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == f"bayesdamper {__version__}"
+
+
+def _options():
+    import argparse
+
+    from bayesdamper.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    for name, command in sub.choices.items():
+        for action in command._actions:
+            if action.option_strings and not isinstance(action, argparse._HelpAction):
+                yield name, action
+
+
+def test_every_option_has_help_with_its_default_and_unit():
+    options = list(_options())
+    assert len(options) > 30
+    for command, action in options:
+        text = action.help or ""
+        where = f"{command} {action.option_strings[0]}"
+        assert text, f"{where}: no help"
+        assert "default" in text or "required" in text, f"{where}: no default in {text!r}"
+        if action.type is not None and action.type not in (str,) and action.nargs is None \
+                and "prior" not in action.dest and action.dest != "velocities":
+            assert "[" in text and "]" in text, f"{where}: numeric option without a unit: {text!r}"
+
+
+def test_defaults_in_help_are_the_defaults():
+    # the stated defaults are computed from the values the code uses, so they cannot drift apart
+    from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS
+    from bayesdamper.inference.sampling import SamplerSettings
+
+    helps = {(c, a.dest): a.help for c, a in _options()}
+    assert f"default: {SamplerSettings().max_steps})" in helps[("identify", "max_steps")]
+    assert "{:g},{:g}".format(*ALPHA_V_BOUNDS) in helps[("identify", "alpha_v_prior")]
+    assert "{:g},{:g}".format(*P_R_BOUNDS) in helps[("report", "p_r_prior")]
+
+
+@pytest.mark.parametrize("args, needle", [
+    ((), "COMMAND"),
+    (("identify",), "--out"),
+    (("frobnicate",), "frobnicate"),
+    (("check", "somewhere", "--tmax", "-1"), "--tmax"),
+])
+def test_usage_errors_are_one_line_with_exit_status_2(args, needle):
+    proc = run(*args)
+    assert proc.returncode == 2
+    assert_clean_error(proc, needle, "--help")

@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -99,6 +100,12 @@ def test_killed_run_resumes_without_touching_finished_transients(data, reference
     again = subprocess.run(identify_cmd(data, out), cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert again.returncode == 0, again.stderr
     assert f"resumed 1 finished transient(s) from {post}" in again.stderr
+    # not a terminal: one summary line per phase, with counts and wall time, and no bar
+    phases = [ln for ln in again.stderr.splitlines() if ": " in ln and " in " in ln and ln.endswith(("s", ")"))]
+    assert any(ln.startswith("load, segment, stage 1: 1 data set in ") for ln in phases), again.stderr
+    assert any(re.fullmatch(r"stage 2 \(\w+\): sampling: 1/1 transient in [\d.]+ s \([01] converged, 1 resumed\)", ln)
+               for ln in phases), again.stderr
+    assert "\r" not in again.stderr and "it/s" not in again.stderr
     after = tree_state(post)
     assert after["tri_1p00mm_s_s0.nc"] == finished["tri_1p00mm_s_s0.nc"]  # byte-for-byte, not rewritten
     assert set(after) == {"tri_1p00mm_s_s0.nc", "tri_1p50mm_s_s1.nc"}

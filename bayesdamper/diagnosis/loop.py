@@ -70,11 +70,17 @@ def calibrate_with(transients, problems, damper, flow, settings, seed: int, work
     import multiprocessing as mp
 
     tasks = [(tr, pb, damper, flow, settings, seed) for tr, pb in zip(transients, problems, strict=True)]
+    out = []
     if workers <= 1:
-        return [_calibrate_task(t) for t in tasks]
+        for t in tasks:
+            out.append(_calibrate_task(t))
+            progress.advance()
+        return out
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-        out = list(ex.map(_calibrate_task, tasks))
+        for r in ex.map(_calibrate_task, tasks):
+            out.append(r)
+            progress.advance()
     progress(f"calibrated {len(out)} transient(s): {sum(r.entry['converged'] for r in out)} converged")
     return out
 
@@ -146,6 +152,7 @@ def select_effects(engine, names: list[str], forces: list[np.ndarray], flow_for,
         for name in remaining:
             progress(f"diagnose: round {rnd + 1}, fitting {name}")
             fits.append(fit_candidate(engine, name, fixed, current["sse"], n_eff, flow_for, pack_effects))
+            progress.advance()
         fits.sort(key=lambda c: c.delta_bic)
         j_cur = pooled_j(current["resid"], forces)
         rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": [

@@ -32,6 +32,7 @@ from bayesdamper.diagnosis.residual import (
     structure_test,
     summarise_structure,
 )
+from bayesdamper.run.progress import count_files
 
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
@@ -66,11 +67,14 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     from bayesdamper.run.stages import drift_summary, identify_all, prepare
 
     t0 = time.perf_counter()
+    progress = Progress(False if quiet else None)
     names = list(EFFECTS) if not effects else list(effects)
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
-    ds, segs, transients, static = prepare(data_dir, tmax)
+    with progress.phase("diagnose: load, segment, stage 1", unit="transient") as ph:
+        ds, segs, transients, static = prepare(data_dir, tmax)
+        ph.done = len(transients)
     if tests:
         missing = set(tests) - {s.record.name for s in segs}
         if missing:
@@ -80,7 +84,6 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    progress = Progress(False if quiet else None)
     sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
     settings = StageTwoSettings(credible_mass=credible_mass, sampler=sampler)
     prov = {"dataset": ds.name, "input_sha256": ds.input_hashes(), "versions": versions(), "seed": seed}
@@ -91,12 +94,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     todo = [i for i, r in enumerate(base) if r is None]
     if len(todo) < len(base):
         progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
-    if todo:
-        progress("diagnose: calibrating the eq. (7) baseline")
+    with progress.phase("diagnose: eq. (7) baseline", total=len(todo), unit="transient"):
         fresh = identify_all([transients[i] for i in todo], ds.damper, static.coefficients, settings, seed,
-                             workers, None, prov, progress)
+                             workers, None, prov, progress) if todo else []
         for i, r in zip(todo, fresh, strict=True):
             base[i] = r
+        progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged, {len(base) - len(todo)} re-used")
     base_problems = [TransientProblem.from_transient(tr, ds.damper, static.coefficients) for tr in transients]
     base_resid = _residuals_at_medians(base, base_problems)
     rows = []
@@ -127,19 +130,23 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         return None
 
     forces = [p.force for p in aug]
-    try:
-        selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress)
-    finally:
-        engine.close()
+    with progress.phase("diagnose: candidate effects", unit="fit"):
+        try:
+            selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress)
+        finally:
+            engine.close()
+        progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
 
     # 3. the final model, calibrated with uncertainty like the baseline
     if selected:
-        progress(f"diagnose: calibrating the final model with {', '.join(selected)}")
         flow_final = flow_for(fixed) or static.coefficients
         eff = pack_effects(fixed)
         final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final), eff) for a in aug]
-        final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
-                               progress)
+        with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
+                            unit="transient"):
+            final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
+                                   progress)
+            progress.note(f"{sum(r.entry['converged'] for r in final)} converged")
         final_resid = _residuals_at_medians(final, final_problems)
     else:
         final, final_resid = base, base_resid
@@ -181,8 +188,10 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures
 
-        diagnosis["figures"] = write_diagnosis_figures(out_dir, transients, base, final, base_resid, final_resid,
-                                                       diagnosis)
+        with progress.phase("diagnose: figures", unit="file") as ph:
+            diagnosis["figures"] = write_diagnosis_figures(out_dir, transients, base, final, base_resid,
+                                                           final_resid, diagnosis)
+            ph.done = count_files(diagnosis["figures"])
     diagnosis["report_text"] = report_text(diagnosis)
     diagnosis["wall_time_s"] = time.perf_counter() - t0
     atomic_write_json(out_dir / "diagnosis.json", diagnosis)

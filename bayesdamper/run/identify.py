@@ -34,7 +34,7 @@ from bayesdamper.run.outfolder import (
     fingerprint_basis,
     settings_fingerprint,
 )
-from bayesdamper.run.progress import Progress
+from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import data_table, drift_summary, identify_all, prepare
 
 
@@ -120,7 +120,8 @@ def _now() -> str:
 
 
 def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_mass: float, tmax: float,
-                  workers: int, figures: bool, force: bool, client, scheduler: str | None) -> dict:
+                  workers: int, figures: bool, force: bool, client, scheduler: str | None,
+                  progress: Progress) -> dict:
     """Stage 2 and the outputs of one validated data set (the only step that writes)."""
     t0 = time.perf_counter()
     ds, out_dir = job.ds, job.out_dir
@@ -128,7 +129,6 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
         _clear(out_dir)
     post_dir = out_dir / POSTERIORS_DIR
     post_dir.mkdir(parents=True, exist_ok=True)
-    progress = Progress()
     if (n := _remove_temporaries(out_dir)):
         progress(f"removed {n} temporary file(s) left by an interrupted run")
     prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
@@ -153,8 +153,11 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     from bayesdamper.inference.stage2 import N_STATIC_DRAWS, STATIC_NEGLIGIBLE_RATIO
 
     draws = job.static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
-    fresh = identify_all([job.transients[i] for i in todo], ds.damper, job.static.coefficients, settings,
-                         seed, workers, post_dir, prov, progress, draws, client=client)
+    with progress.phase(f"stage 2 ({ds.name}): sampling", total=len(todo), unit="transient"):
+        fresh = identify_all([job.transients[i] for i in todo], ds.damper, job.static.coefficients, settings,
+                             seed, workers, post_dir, prov, progress, draws, client=client)
+        progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged"
+                      + (f", {len(resumed)} resumed" if resumed else ""))
     for i, r in zip(todo, fresh, strict=True):
         results[i] = r
     entries = [r.entry for r in results]
@@ -181,8 +184,10 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     if figures:
         from bayesdamper.report.figures import write_identify_figures
 
-        summary["figures"] = write_identify_figures(out_dir, ds, job.segs, job.static, results, summary,
-                                                    workers=workers)
+        with progress.phase(f"figures ({ds.name})", unit="file") as ph:
+            summary["figures"] = write_identify_figures(out_dir, ds, job.segs, job.static, results, summary,
+                                                        workers=workers)
+            ph.done = count_files(summary["figures"])
     wall = time.perf_counter() - t0
     summary["wall_time_s"] = wall
     atomic_write_json(out_dir / SUMMARY_FILE, summary)
@@ -231,7 +236,11 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
     if not dirs:
         raise SettingsError("no data-set folder given")
     settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps)
-    jobs = _plan(dirs, out, settings, seed, tmax, only, force)
+    progress = Progress()
+    with progress.phase("load, segment, stage 1", unit="data set") as ph:
+        jobs = _plan(dirs, out, settings, seed, tmax, only, force)
+        ph.done = len(jobs)
+        ph.note = f"{sum(len(j.transients) for j in jobs)} transients"
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     client = None
     if scheduler:
@@ -241,7 +250,7 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
     try:
         summaries = [_identify_one(job, settings, seed=seed, credible_mass=credible_mass, tmax=tmax,
                                    workers=workers, figures=figures, force=force, client=client,
-                                   scheduler=scheduler) for job in jobs]
+                                   scheduler=scheduler, progress=progress) for job in jobs]
     finally:
         if client is not None:
             client.close()

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from bayesdamper.run.identify import identify_out_dir, run_identify
+from bayesdamper.run.progress import Progress
 
 
 def run_report(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: str, *, seed: int = 0,
@@ -42,7 +43,9 @@ def run_report(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: s
         if run_diagnosis is not None:
             diagnosis = run_diagnosis(str(d), str(out_dir), seed=seed, workers=workers, tmax=tmax,
                                       credible_mass=credible_mass, max_steps=max_steps, figures=figures)
-        page = render_report(summary, diagnosis, out_dir, diagnosis_note=note)
+        with Progress().phase(f"report ({summary['dataset']})", unit="page") as ph:
+            page = render_report(summary, diagnosis, out_dir, diagnosis_note=note)
+            ph.done = 1
         print(f"report written to {page}")
         pages.append(page)
     return pages

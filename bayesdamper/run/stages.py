@@ -77,6 +77,7 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
         state = "converged" if e["converged"] else "NOT converged"
         progress(f"[{done}/{len(tasks)}] {e['id']}: {state}, R-hat {e['rhat_max']:.3f}, "
                  f"ESS {e['ess_bulk_min']:.0f}, τ_max {max(e['tau'].values()):.0f}, {e['wall_s']:.1f} s")
+        progress.advance()
 
     if not tasks:
         return []
