@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -200,3 +201,36 @@ def test_usage_errors_are_one_line_with_exit_status_2(args, needle):
     proc = run(*args)
     assert proc.returncode == 2
     assert_clean_error(proc, needle, "--help")
+
+
+def _saturating_data_set(folder: Path) -> Path:
+    """Triangular tests of a damper whose static force saturates with speed (F = F_max tanh(v / v_0)), with
+    a first-order force lag after each velocity step: written here with numpy alone, not by bayesdamper."""
+    folder.mkdir()
+    (folder / "damper.toml").write_text((RIG_A / "damper.toml").read_text().replace('"rig-A"', '"saturating"'))
+    rng = np.random.default_rng(11)
+    f_max, v_0, tau, amp, rest, rate = 8000.0, 0.6e-3, 0.15, 3.0e-3, 1.0, 200.0
+    for v in (0.5e-3, 0.8e-3, 1.1e-3, 1.4e-3):
+        quarter = amp / v
+        t = np.arange(0.0, rest + 5 * quarter, 1 / rate)
+        phase = np.clip(t - rest, 0, None) / quarter  # 0..5 quarters: 0 -> A -> -A -> A
+        tri = np.where(phase < 1, phase, np.where(phase < 3, 2 - phase, phase - 4)) * amp
+        vel = np.gradient(tri, t)
+        target = f_max * np.tanh(np.round(vel / v, 6) * v / v_0)
+        force = np.empty_like(t)
+        force[0] = 0.0
+        for k in range(1, t.size):  # exact first-order lag towards the piecewise-constant target
+            force[k] = target[k] + (force[k - 1] - target[k]) * np.exp(-(t[k] - t[k - 1]) / tau)
+        rows = np.column_stack([t, tri + rng.normal(0, 1e-6, t.size), force + rng.normal(0, 10.0, t.size)])
+        np.savetxt(folder / f"tri_{v * 1e3:.2f}mm_s.csv".replace(".", "p", 1), rows, delimiter=",",
+                   header="time_s,displacement_m,force_N", comments="", fmt="%.6f,%.7e,%.3f")
+    return folder
+
+
+def test_saturating_static_characteristic_fails_before_anything_is_written(tmp_path):
+    data = _saturating_data_set(tmp_path / "sat")
+    out = tmp_path / "out"
+    proc = run("identify", data, "--out", out, "--tmax", "1.5", "--max-steps", "200")
+    assert proc.returncode == 2
+    assert_clean_error(proc, str(data), "orifice law")
+    assert not out.exists()  # not even run.json

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.inference.drift import fit_drift
 from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
 from bayesdamper.inference.problem import TransientProblem
@@ -29,6 +30,12 @@ def prepare(data_dir: str | Path, tmax: float):
     transients = [t for s in segs for t in s.transients]
     plateaus = [p for s in segs for p in s.plateaus]
     static = fit_static(plateaus, source=str(ds.path))
+    try:  # validated here, before any job writes: stage 2 cannot run on coefficients eq. (8) cannot have
+        static.coefficients  # noqa: B018
+    except SettingsError as err:
+        raise DataError(f"{ds.path}: stage 1 from the plateaus gives {err}: the static force-velocity "
+                        "characteristic does not follow the orifice law eq. (8) (does the force saturate "
+                        "with speed?)") from None
     return ds, segs, transients, static
 
 
