@@ -38,6 +38,18 @@ class _Parser(argparse.ArgumentParser):
     def error(self, message: str):
         raise _UsageError(f"{message} (see '{self.prog} --help')")
 
+    def format_help(self) -> str:
+        for action in self._actions:  # help texts that need a heavy import are built only when shown
+            if callable(action.help):
+                action.help = action.help()
+        return super().format_help()
+
+
+def _effects_help() -> str:
+    from bayesdamper.physics.effects import EFFECTS  # compiles numba kernels: not on every start-up
+
+    return f"comma-separated candidate effects (default: all of {', '.join(EFFECTS)})"
+
 
 def _floats(text: str) -> list[float]:
     try:
@@ -141,8 +153,6 @@ def build_parser() -> argparse.ArgumentParser:
         i.add_argument("--force", action="store_true",
                        help="clear results of different settings in OUT instead of refusing (default: refuse)")
 
-    from bayesdamper.physics.effects import EFFECTS
-
     g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit",
                        description="Calibrate eq. (7), test its residuals for structure, fit candidate effects, "
                                    "select by the stated criterion, refit and report J before and after.")
@@ -152,7 +162,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--seed", type=int, default=0,
                    help="seed of every random choice of the run [-] (default: %(default)s)")
     g.add_argument("--effects", default=None, metavar="NAMES",
-                   help=f"comma-separated candidate effects (default: all of {', '.join(EFFECTS)})")
+                   help=_effects_help)
     g.add_argument("--workers", type=int, default=0, help="worker processes [-] (default: %(default)s = all cores)")
     g.add_argument("--tmax", type=_positive_float, default=3.0,
                    help="transient window length after each velocity step [s] (default: %(default)s)")

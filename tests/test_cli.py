@@ -162,6 +162,7 @@ def _options():
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     for name, command in sub.choices.items():
+        command.format_help()  # builds the help texts that are made only when shown
         for action in command._actions:
             if action.option_strings and not isinstance(action, argparse._HelpAction):
                 yield name, action

@@ -29,12 +29,8 @@ from bayesdamper.diagnosis.residual import _lag1
 
 #: Grid points per shared parameter in the outer search before local refinement.
 GRID_POINTS = 6
-
-
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
-
-
 _PROBLEMS: list = []
 
 

@@ -20,14 +20,10 @@ from bayesdamper.physics.effect_vector import pack_effects
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
 SELECT_DELTA_BIC = -10.0
-
-
 #: Smallest relative reduction of the pooled eq. (9) error a selected effect must achieve (a fifth of
 #: what is left): statistical support alone would let a smooth, small improvement of a slightly
 #: mis-specified base model through (on two-state data the mis-specification looks partly like friction).
 MIN_J_REDUCTION = 0.2
-
-
 #: Rounds of the select-and-refit loop.
 MAX_ROUNDS = 3
 

@@ -22,8 +22,6 @@ from scipy import stats
 MAX_RHO = 0.995
 #: Window of the moving-average low-pass used by the structure test [s] (keeps < ~5 Hz content).
 SMOOTH_S = 0.1
-
-
 #: Significance level of the structure test.
 STRUCTURE_ALPHA = 1e-3
 

@@ -14,10 +14,7 @@ import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
-import emcee
 import numpy as np
-
-from bayesdamper.inference import posterior as post
 
 #: Chain length required, in integrated autocorrelation times (emcee's documented rule of thumb).
 TAU_FACTOR = 50.0
@@ -110,6 +107,8 @@ class SamplingResult:
 
 
 def _moves(name: str):
+    import emcee  # here, not at module level: the CLI reads SamplerSettings' defaults without emcee/arviz
+
     if name == "stretch":
         return None
     if name == "de":
@@ -183,6 +182,8 @@ def _tau(chain: np.ndarray) -> np.ndarray:
     A parameter whose walkers never moved has no defined τ; it is reported as infinite, so the run
     cannot pass as converged.
     """
+    import emcee
+
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
     return np.where(np.isfinite(tau), tau, np.inf)
@@ -207,6 +208,10 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     progress : callable, optional
         Receives a one-line status after every convergence check.
     """
+    import emcee
+
+    from bayesdamper.inference import posterior as post
+
     settings = settings or SamplerSettings()
     start = np.asarray(start, dtype=float)
     ndim = start.size

@@ -57,56 +57,30 @@ __all__ = [
     "segment_dataset",
     "segment_record",
 ]
-
-
 #: Length of the local linear regression giving the smoothed velocity [s].
 SMOOTHING_WINDOW = 0.2
-
-
 #: Fewest samples in the smoothing window, whatever the sample rate [-].
 MIN_SMOOTHING_SAMPLES = 5
-
-
 #: Speed threshold as a fraction of the reference speed (95th percentile of |smoothed velocity|) [-].
 VELOCITY_THRESHOLD_FRACTION = 0.25
-
-
 #: Percentile of the smoothed speed taken as the reference speed [%].
 REFERENCE_SPEED_PERCENTILE = 95.0
-
-
 #: Speed threshold in standard deviations of the smoothed-velocity noise [-].
 NOISE_THRESHOLD_SIGMAS = 8.0
-
-
 #: Shortest run of one motion state kept as a segment; shorter runs are corner regions [s].
 MIN_SEGMENT = 0.4
-
-
 #: Data excluded from each line fit next to a corner, at least [s].
 CORNER_MARGIN = 0.25
-
-
 #: ... and at least this fraction of the run's length [-].
 CORNER_FRACTION = 0.1
-
-
 #: Residual beyond which a sample is rejected from a line fit, in robust standard deviations [-].
 OUTLIER_SIGMAS = 5.0
-
-
 #: Length of the force average just before a step giving the step force [s].
 STEP_FORCE_WINDOW = 0.15
-
-
 #: Plateau = this last fraction of a ramp [-] ...
 PLATEAU_FRACTION = 0.3
-
-
 #: ... ending this long before the next corner or the end of the record [s].
 PLATEAU_MARGIN = 0.2
-
-
 #: Fewest samples in a plateau [-].
 MIN_PLATEAU_SAMPLES = 5
 

@@ -67,15 +67,12 @@ from bayesdamper.physics.rodas import (
 
 __all__ = ["MAX_STEPS", "solve_augmented"]
 
-
 (_COULOMB, _VISCOUS, _STRIBECK, _STRIBECK_V, _GAP, _LAG_TAU, _VALVE_TAU, _VALVE_P, _COMPLIANCE,
  _MASS) = range(len(EFFECT_SLOTS))
 
 
 #: Maximum number of accepted steps of one :func:`solve_augmented` call (whole records included).
 MAX_STEPS = 100_000
-
-
 _MESSAGES = {**STATUS_MESSAGES, STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed"}
 
 

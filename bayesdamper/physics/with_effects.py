@@ -148,8 +148,6 @@ def simulate_augmented(
 # ----------------------------------------------------------------------------- problem binding
 #: Kernel tolerances inside the likelihood: those of :class:`bayesdamper.inference.problem.TransientProblem`.
 PROBLEM_RTOL = 1e-6
-
-
 PROBLEM_ATOL = 1.0  # [Pa]
 
 

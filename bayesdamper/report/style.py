@@ -14,39 +14,23 @@ from collections.abc import Mapping, Sequence
 
 #: Multiplier from m^3/s to the displayed flow-rate unit, 10^-6 m^3/s.
 FLOW_DISPLAY = 1e6
-
-
 #: Multiplier from Pa to the displayed pressure unit, MPa.
 PRESSURE_DISPLAY = 1e-6
-
-
 #: Multiplier from N to the displayed force unit, kN.
 FORCE_DISPLAY = 1e-3
-
-
 #: Multiplier from m/s to the displayed piston-speed unit, mm/s.
 SPEED_DISPLAY = 1e3
-
-
 #: Half-width of the Figure 3 band about the fitted curve, in standard errors of the mean curve.
 STATIC_BAND_SE = 2.0
-
-
 #: Colour and label of each flow direction (sign of Δp after the step).
 DIRECTION_STYLE = {
     1: {"color": "C0", "label": "12 (Δp > 0)"},
     -1: {"color": "C3", "label": "21 (Δp < 0)"},
 }
-
-
 #: Marker of each kind of velocity step.
 KIND_MARKER = {"initial": "^", "reversal": "o"}
-
-
 #: Colour of transients whose sampler did not converge.
 NOT_CONVERGED_COLOR = "0.6"
-
-
 #: Axis label and display multiplier of each sampled parameter (unknown names: name, multiplier 1).
 PARAMETER_LABELS = {
     "alpha_V": ("α_V [-]", 1.0),

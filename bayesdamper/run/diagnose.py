@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bayesdamper.core.errors import SettingsError
 from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j
 from bayesdamper.diagnosis.loop import (
     SELECT_DELTA_BIC,
@@ -32,15 +33,22 @@ from bayesdamper.diagnosis.residual import (
     structure_test,
     summarise_structure,
 )
-from bayesdamper.run.progress import count_files
+from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.inference.sampling import SamplerSettings
+from bayesdamper.inference.stage2 import StageTwoSettings
+from bayesdamper.io.outputs import atomic_write_json, versions
+from bayesdamper.physics.effect_vector import pack_effects
+from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.physics.with_effects import AugmentedProblem
+from bayesdamper.run.outfolder import POSTERIORS_DIR, _load_finished, fingerprint_basis, settings_fingerprint
+from bayesdamper.run.progress import Progress, count_files
+from bayesdamper.run.stages import drift_summary, identify_all, prepare
 
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
     """Baseline results stored by ``identify`` in ``out_dir/posteriors`` under the same settings
     fingerprint (None where a transient has no such file)."""
-    from bayesdamper.run.outfolder import _load_finished, fingerprint_basis, settings_fingerprint
-
-    post_dir = out_dir / "posteriors"
+    post_dir = out_dir / POSTERIORS_DIR
     if not post_dir.is_dir():
         return [None] * len(transients)
     fp = settings_fingerprint(fingerprint_basis(settings.as_dict(), tmax, seed, dataset_sha256))
@@ -55,16 +63,6 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
 
     ``tests`` restricts the run to the named records (file stems) of the data set.
     """
-    from bayesdamper.core.errors import SettingsError
-    from bayesdamper.inference.problem import TransientProblem
-    from bayesdamper.inference.sampling import SamplerSettings
-    from bayesdamper.inference.stage2 import StageTwoSettings
-    from bayesdamper.io.outputs import atomic_write_json, versions
-    from bayesdamper.physics.effect_vector import pack_effects
-    from bayesdamper.physics.effects import EFFECTS
-    from bayesdamper.physics.with_effects import AugmentedProblem
-    from bayesdamper.run.progress import Progress
-    from bayesdamper.run.stages import drift_summary, identify_all, prepare
 
     t0 = time.perf_counter()
     progress = Progress(False if quiet else None)

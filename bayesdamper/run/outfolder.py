@@ -22,17 +22,9 @@ from bayesdamper.report.html import REPORT_FILE
 
 #: Files and folders an ``identify`` run owns inside its output folder (``--force`` clears them).
 RUN_FILE = "run.json"
-
-
 SUMMARY_FILE = "summary.json"
-
-
 POSTERIORS_DIR = "posteriors"
-
-
 OWNED = (POSTERIORS_DIR, FIGURES_DIR, SUMMARY_FILE, RUN_FILE, REPORT_FILE)
-
-
 #: Name of a temporary file of the atomic writers (``outputs.atomic_write_bytes``,
 #: ``posterior.write_netcdf``): ``.<name>.tmp<pid>``. Only a killed process leaves one behind.
 _TEMPORARY = re.compile(r"^\..+\.tmp\d+$")
