@@ -15,7 +15,8 @@ bayesdamper reads a data set (a folder with damper.toml and one CSV per test: ti
 force [N]), cuts its triangular tests into plateaus and transients, fits the static orifice coefficients of
 eq. (8) from the plateaus (stage 1), samples the posterior of the liquid-gas ratio alpha_V and the reference
 pressure p_R of eq. (6) for every transient with emcee (stage 2), checks convergence, and diagnoses what the
-single-state model eq. (7) misses."""
+single-state model eq. (7) misses. Sine, sweep, multisine or random records are identified as whole records
+(flow coefficients, alpha_V and p_R sampled jointly); the mode is chosen from the data (--mode)."""
 
 EPILOG = """\
 examples:
@@ -75,6 +76,10 @@ def _mass(text: str) -> float:
     return v
 
 
+_MODE_HELP = ("how to identify: auto (two-stage when every record is a triangular test, else whole-record), "
+              "two-stage or whole-record (default: %(default)s)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS
     from bayesdamper.inference.sampling import SamplerSettings
@@ -92,6 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--tmax", type=_positive_float, default=3.0,
                    help="transient window length after each velocity step [s] (default: %(default)s)")
     c.add_argument("--no-fit", action="store_true", help="only validate and segment (default: also fit)")
+    c.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
+                   help=_MODE_HELP)
 
     s = sub.add_parser("simulate", help="write a synthetic data set with known truth",
                        description="Write a synthetic triangular-test data set (eq. (7) or the two-state model, "
@@ -150,6 +157,8 @@ def build_parser() -> argparse.ArgumentParser:
         i.add_argument("--only", default=None, metavar="IDS",
                        help="comma-separated transient ids to run (default: all)")
         i.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
+        i.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
+                       help=_MODE_HELP)
         i.add_argument("--force", action="store_true",
                        help="clear results of different settings in OUT instead of refusing (default: refuse)")
 
@@ -171,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-steps", type=int, default=None,
                    help=f"emcee step budget per ensemble [steps] (default: {max_steps})")
     g.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
+    g.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
+                   help=_MODE_HELP)
     return p
 
 
@@ -184,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "check":
             from bayesdamper.run.check import run_check
 
-            run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit)
+            run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit, mode=args.mode)
         elif args.command == "simulate":
             from bayesdamper.io.synthetic import run_simulate
             from bayesdamper.physics.effects import parse_effect_specs
@@ -199,7 +210,7 @@ def main(argv: list[str] | None = None) -> int:
             run_diagnosis(args.data_dir, args.out, seed=args.seed,
                           effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
                           workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
-                          max_steps=args.max_steps, figures=not args.no_figures)
+                          max_steps=args.max_steps, figures=not args.no_figures, mode=args.mode)
         elif args.command in ("identify", "report"):
             from bayesdamper.run.identify import run_identify
             from bayesdamper.run.report import run_report
@@ -209,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
                 tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
                 alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
                 max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
-                force=args.force, scheduler=args.scheduler)
+                force=args.force, scheduler=args.scheduler, mode=args.mode)
     except BayesDamperError as err:
         print(f"bayesdamper: error: {err}", file=sys.stderr)
         return 2

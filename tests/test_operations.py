@@ -102,7 +102,7 @@ def test_killed_run_resumes_without_touching_finished_transients(data, reference
     assert f"resumed 1 finished transient(s) from {post}" in again.stderr
     # not a terminal: one summary line per phase, with counts and wall time, and no bar
     phases = [ln for ln in again.stderr.splitlines() if ": " in ln and " in " in ln and ln.endswith(("s", ")"))]
-    assert any(ln.startswith("load, segment, stage 1: 1 data set in ") for ln in phases), again.stderr
+    assert any(ln.startswith("load, classify, segment, stage 1: 1 data set in ") for ln in phases), again.stderr
     assert any(re.fullmatch(r"stage 2 \(\w+\): sampling: 1/1 transient in [\d.]+ s \([01] converged, 1 resumed\)", ln)
                for ln in phases), again.stderr
     assert "\r" not in again.stderr and "it/s" not in again.stderr

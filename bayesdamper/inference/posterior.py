@@ -124,4 +124,5 @@ def read_transient(path: Path) -> dict:
 
     return {"names": names, "chains": chains, "time": np.asarray(const["time_s"].values, dtype=float),
             "force": np.asarray(idata.observed_data["force_N"].values, dtype=float),
-            "band": _opt("band_N"), "ls_force": _opt("ls_force_N"), "attrs": provenance(idata)}
+            "band": _opt("band_N"), "ls_force": _opt("ls_force_N"), "displacement": _opt("displacement_m"),
+            "attrs": provenance(idata)}

@@ -325,12 +325,8 @@ def _check_columns(
             f"differs from the median {med:g} s by {100 * dev[i]:.0f}% (tolerance "
             f"{100 * SAMPLE_RATE_JITTER:.0f}%)"
         )
-    duration = float(time[-1] - time[0])
-    if duration < tmax + DURATION_MARGIN:
-        raise DataError(
-            f"{path}: record lasts {duration:g} s, too short for one transient window "
-            f"(tmax = {tmax:g} s plus {DURATION_MARGIN:g} s margin)"
-        )
+    if tmax is not None:
+        check_duration(path, float(time[-1] - time[0]), tmax)
     ymax = float(np.max(np.abs(y)))
     if ymax > MAX_DISPLACEMENT:
         raise DataError(
@@ -345,7 +341,18 @@ def _check_columns(
         )
 
 
-def _check_tmax(tmax: float) -> float:
+def check_duration(path: Path, duration: float, tmax: float) -> None:
+    """DataError unless a record of ``duration`` [s] holds one transient window of ``tmax`` [s]."""
+    if duration < tmax + DURATION_MARGIN:
+        raise DataError(
+            f"{path}: record lasts {duration:g} s, too short for one transient window "
+            f"(tmax = {tmax:g} s plus {DURATION_MARGIN:g} s margin)"
+        )
+
+
+def _check_tmax(tmax: float | None) -> float | None:
+    if tmax is None:  # whole-record use: no transient window to fit in
+        return None
     try:
         t = float(tmax)
     except (TypeError, ValueError):
@@ -355,16 +362,16 @@ def _check_tmax(tmax: float) -> float:
     return t
 
 
-def load_record(path: str | Path, *, tmax: float = 3.0) -> TestRecord:
+def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
     """Read and validate one test CSV.
 
     Parameters
     ----------
     path : str or Path
         CSV file with columns ``time_s`` [s], ``displacement_m`` [m] and ``force_N`` [N].
-    tmax : float
+    tmax : float or None
         Transient window length T_max of eq. (9) [s]; the record must last at least
-        ``tmax + DURATION_MARGIN``.
+        ``tmax + DURATION_MARGIN``. None: no duration rule (whole-record identification).
 
     Returns
     -------
@@ -427,7 +434,7 @@ def _csv_files(folder: Path) -> list[Path]:
     return sorted(files, key=lambda p: (p.stem, p.name))
 
 
-def load_dataset(path: str | Path, *, tmax: float = 3.0) -> Dataset:
+def load_dataset(path: str | Path, *, tmax: float | None = 3.0) -> Dataset:
     """Read and validate a data-set folder: ``damper.toml`` plus one CSV per test.
 
     Parameters

@@ -8,17 +8,29 @@ import time
 
 from bayesdamper.inference.pointfit import fit_point
 from bayesdamper.inference.problem import TransientProblem
-from bayesdamper.run.stages import data_table, prepare
+from bayesdamper.run.plan import TWO_STAGE, plan_dataset
+from bayesdamper.run.stages import data_table
 
 
-def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True) -> None:
-    """``bayesdamper check``: validate, segment, stage 1 and the Nelder-Mead stage 2; print tables."""
+def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str = "auto") -> None:
+    """``bayesdamper check``: validate, classify each record, then segment, stage 1 and the Nelder-Mead
+    stage 2 (two-stage mode) or the whole-record least-squares fit; print tables."""
     t0 = time.perf_counter()
-    ds, segs, transients, static = prepare(data_dir, tmax)
-    print(f"data set {ds.name!r}: {len(ds.records)} test(s), {len(transients)} transient(s), "
-          f"A_P = {ds.damper.piston_area:g} m^2, V01 = {ds.damper.chamber_volume_1:g} m^3, "
-          f"V02 = {ds.damper.chamber_volume_2:g} m^3, B0 = {ds.damper.liquid_bulk_modulus:g} Pa")
+    plan = plan_dataset(data_dir, tmax, mode)
+    ds = plan.ds
+    print(f"data set {ds.name!r}: {len(ds.records)} test(s), A_P = {ds.damper.piston_area:g} m^2, "
+          f"V01 = {ds.damper.chamber_volume_1:g} m^3, V02 = {ds.damper.chamber_volume_2:g} m^3, "
+          f"B0 = {ds.damper.liquid_bulk_modulus:g} Pa")
+    print(f"mode: {plan.mode} ({plan.mode_reason})")
+    for line in plan.describe():
+        print(f"  {line}")
     print()
+    if plan.mode != TWO_STAGE:
+        _check_whole(plan, fit)
+        print(f"\nchecked in {time.perf_counter() - t0:.1f} s")
+        return
+    segs, transients, static = plan.segs, plan.transients, plan.static
+    print(f"{len(transients)} transient(s)")
     hdr = f"{'test':<16}{'step':>5}  {'kind':<9}{'dir':>4}{'v [mm/s]':>10}{'t_step [s]':>12}" \
           f"{'F_step [N]':>12}{'plateau F [N]':>15}"
     print(hdr)
@@ -45,3 +57,29 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True) -> None:
             print(f"  {tr.id:<22}{tr.kind:<9}{tr.direction:>+4d}{tr.velocity * 1e3:10.3f}"
                   f"{pf.alpha_v:11.2f}{pf.p_r:12.4g}{pf.cost:9.4f}")
     print(f"\nchecked in {time.perf_counter() - t0:.1f} s")
+
+
+def _check_whole(plan, fit: bool) -> None:
+    """The whole-record part of ``check``: the decimation of each record and its least-squares fit."""
+    import numpy as np
+
+    from bayesdamper.inference.whole import WholeLogPosterior, WholeRecordProblem, WholeSpace, static_scales
+    from bayesdamper.inference.whole_stage import point_fit, quasi_static_start
+
+    print(f"{'record':<22}{'samples':>8}{'decim.':>7}{'rate [Hz]':>10}")
+    for w in plan.windows:
+        print(f"{w.id:<22}{w.time.size:>8}{w.decimation:>7}{w.rate_hz:>10.1f}")
+    if not fit:
+        return
+    print()
+    print("whole-record least squares on eq. (9) (all parameters at once):")
+    print(f"  {'record':<22}{'C_L12':>11}{'C_Q12':>11}{'C_L21':>11}{'C_Q21':>11}{'alpha_V':>9}{'p_R [Pa]':>11}"
+          f"{'J':>8}")
+    for w in plan.windows:
+        prob = WholeRecordProblem(w, plan.ds.damper)
+        ws = WholeSpace.build(static_scales(w, plan.ds.damper.piston_area), float(np.max(np.abs(w.force))))
+        lp = WholeLogPosterior(prob, ws)
+        flow4, off = quasi_static_start(prob, False)
+        x, j = point_fit(lp, off, flow4)
+        print(f"  {w.id:<22}" + "".join(f"{v:11.3e}" for v in x[:4]) + f"{np.exp(x[4]):9.1f}{np.exp(x[5]):11.4g}"
+              f"{j:8.4f}")

@@ -42,7 +42,7 @@ from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import AugmentedProblem
 from bayesdamper.run.outfolder import POSTERIORS_DIR, _load_finished, fingerprint_basis, settings_fingerprint
 from bayesdamper.run.progress import Progress, count_files
-from bayesdamper.run.stages import drift_summary, identify_all, prepare
+from bayesdamper.run.stages import drift_summary, identify_all
 
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
@@ -58,10 +58,12 @@ def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int,
 def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
                   workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
                   max_steps: int | None = None, figures: bool = True, quiet: bool = False,
-                  tests: list[str] | None = None) -> dict:
+                  tests: list[str] | None = None, mode: str = "auto") -> dict:
     """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model.
 
-    ``tests`` restricts the run to the named records (file stems) of the data set.
+    ``tests`` restricts the run to the named records (file stems) of the data set. ``mode`` as for
+    ``identify``: a data set that is not all triangular tests is diagnosed record by record as a whole
+    (:mod:`bayesdamper.run.diagnose_whole`).
     """
 
     t0 = time.perf_counter()
@@ -70,8 +72,16 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    from bayesdamper.run.plan import WHOLE, plan_dataset
+
+    plan = plan_dataset(data_dir, tmax, mode)
+    if plan.mode == WHOLE:
+        from bayesdamper.run.diagnose_whole import run_whole_diagnosis
+
+        return run_whole_diagnosis(plan, out, seed=seed, effects=effects, workers=workers,
+                                   credible_mass=credible_mass, figures=figures, quiet=quiet, tests=tests)
     with progress.phase("diagnose: load, segment, stage 1", unit="transient") as ph:
-        ds, segs, transients, static = prepare(data_dir, tmax)
+        ds, segs, transients, static = plan.ds, plan.segs, plan.transients, plan.static
         ph.done = len(transients)
     if tests:
         missing = set(tests) - {s.record.name for s in segs}

@@ -34,8 +34,9 @@ from bayesdamper.run.outfolder import (
     fingerprint_basis,
     settings_fingerprint,
 )
+from bayesdamper.run.plan import TWO_STAGE, WHOLE, check_mode, plan_dataset
 from bayesdamper.run.progress import Progress, count_files
-from bayesdamper.run.stages import data_table, drift_summary, identify_all, prepare
+from bayesdamper.run.stages import data_table, drift_summary, identify_all
 
 
 def _bounds(values, name: str) -> tuple[float, float] | None:
@@ -63,6 +64,7 @@ class _Job:
     out_dir: Path
     basis: dict
     fingerprint: str
+    plan: object = None
 
 
 def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps) -> StageTwoSettings:
@@ -81,15 +83,20 @@ def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, ma
 
 
 def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: int, tmax: float,
-          only: str | None, force: bool) -> list[_Job]:
-    """Load, segment and fit stage 1 for every data set; check the output folders. Writes nothing."""
-    prepared = [prepare(d, tmax) for d in data_dirs]
+          only: str | None, force: bool, mode: str = "auto") -> list[_Job]:
+    """Load, classify, segment and fit stage 1 (or prepare whole records) for every data set; check the
+    output folders. Writes nothing."""
+    plans = [plan_dataset(d, tmax, mode) for d in data_dirs]
+    prepared = [(p.ds, p.segs, p.transients if p.mode == TWO_STAGE else p.windows, p.static) for p in plans]
     if only:
         wanted = {s.strip() for s in only.split(",") if s.strip()}
         unknown = wanted - {t.id for p in prepared for t in p[2]}
         if unknown:
             raise SettingsError(f"--only: unknown segment id(s) {', '.join(sorted(unknown))}")
         prepared = [(ds, segs, [t for t in trs if t.id in wanted], st) for ds, segs, trs, st in prepared]
+        for p, (_, _, trs, _) in zip(plans, prepared, strict=True):
+            if p.mode == WHOLE:
+                p.windows = trs
     out_root = Path(out)
     if out_root.exists() and not out_root.is_dir():
         raise SettingsError(f"{out_root}: exists and is not a folder")
@@ -104,14 +111,17 @@ def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: in
                                     "give them distinct [damper] names")
         outs = [out_root / n for n in names]
     jobs = []
-    for (ds, segs, trs, static), out_dir in zip(prepared, outs, strict=True):
+    for (ds, segs, trs, static), out_dir, p in zip(prepared, outs, plans, strict=True):
         if not trs:
             continue
-        basis = fingerprint_basis(settings.as_dict(), tmax, seed, ds.sha256)
+        sd = settings.as_dict() if p.mode == TWO_STAGE else {**settings.as_dict(), "mode": WHOLE}
+        basis = fingerprint_basis(sd, tmax, seed, ds.sha256)
         check_output_folder(out_dir, basis, force)
-        jobs.append(_Job(ds, segs, trs, static, out_dir, basis, settings_fingerprint(basis)))
+        jobs.append(_Job(ds, segs, trs, static, out_dir, basis, settings_fingerprint(basis), p))
     if not jobs:
         raise SettingsError("no transient to identify")
+    for p in plans:  # only once every input is valid: a bad run prints one line
+        print(f"{p.ds.name}: mode {p.mode} ({p.mode_reason})", file=sys.stderr, flush=True)
     return jobs
 
 
@@ -123,6 +133,11 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                   workers: int, figures: bool, force: bool, client, scheduler: str | None,
                   progress: Progress) -> dict:
     """Stage 2 and the outputs of one validated data set (the only step that writes)."""
+    if job.plan is not None and job.plan.mode == WHOLE:
+        from bayesdamper.run.identify_whole import identify_whole_job
+
+        return identify_whole_job(job, settings, seed=seed, credible_mass=credible_mass, workers=workers,
+                                  figures=figures, force=force, progress=progress, now=_now)
     t0 = time.perf_counter()
     ds, out_dir = job.ds, job.out_dir
     if force:
@@ -137,6 +152,7 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     run = {"fingerprint": job.fingerprint, "fingerprint_basis": job.basis,
            "fingerprint_of": "sha256 of the canonical JSON (sorted keys, no spaces) of fingerprint_basis",
            "status": "running", "started_utc": _now(), "dataset": ds.name, "dataset_path": str(ds.path),
+           "mode": TWO_STAGE, "mode_reason": job.plan.mode_reason if job.plan else "",
            "input_sha256": ds.input_hashes(), "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax,
            "versions": prov["versions"], "workers": workers, "scheduler": scheduler,
            "transients": [t.id for t in job.transients]}
@@ -163,7 +179,8 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     entries = [r.entry for r in results]
     ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")] for e in entries])
     summary = {
-        "dataset": ds.name, "credible_mass": credible_mass,
+        "dataset": ds.name, "mode": TWO_STAGE, "credible_mass": credible_mass,
+        "plan": job.plan.as_dict() if job.plan else None,
         "static": job.static.intervals(credible_mass),
         "segments": entries,
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
@@ -205,7 +222,7 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
                  credible_mass: float = 0.9, tmax: float = 3.0, workers: int = 0, noise_model: str = "ar1",
                  alpha_v_prior=None, p_r_prior=None, max_steps: int | None = None, only: str | None = None,
                  figures: bool = True, force: bool = False,
-                 scheduler: str | None = None) -> dict | list[dict]:
+                 scheduler: str | None = None, mode: str = "auto") -> dict | list[dict]:
     """``bayesdamper identify``: stage 1 and Bayesian stage 2 for every transient; write OUT.
 
     Parameters
@@ -219,6 +236,9 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
     scheduler : str, optional
         Address of a Dask scheduler (``tcp://host:8786``) to run the transients on instead of
         ``workers`` local processes.
+    mode : str
+        ``"auto"`` (two-stage when every record is a triangular test, else whole-record), or forced
+        ``"two-stage"`` / ``"whole-record"`` (:mod:`bayesdamper.run.plan`).
 
     Returns
     -------
@@ -237,10 +257,12 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
         raise SettingsError("no data-set folder given")
     settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps)
     progress = Progress()
-    with progress.phase("load, segment, stage 1", unit="data set") as ph:
-        jobs = _plan(dirs, out, settings, seed, tmax, only, force)
+    check_mode(mode)
+    with progress.phase("load, classify, segment, stage 1", unit="data set") as ph:
+        jobs = _plan(dirs, out, settings, seed, tmax, only, force, mode)
         ph.done = len(jobs)
-        ph.note = f"{sum(len(j.transients) for j in jobs)} transients"
+        ph.note = ", ".join(f"{len(j.transients)} {'transients' if j.plan.mode == TWO_STAGE else 'records'}"
+                            for j in jobs)
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     client = None
     if scheduler:

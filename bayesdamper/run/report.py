@@ -42,7 +42,8 @@ def run_report(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: s
         diagnosis = None
         if run_diagnosis is not None:
             diagnosis = run_diagnosis(str(d), str(out_dir), seed=seed, workers=workers, tmax=tmax,
-                                      credible_mass=credible_mass, max_steps=max_steps, figures=figures)
+                                      credible_mass=credible_mass, max_steps=max_steps, figures=figures,
+                                      mode=identify_options.get("mode", "auto"))
         with Progress().phase(f"report ({summary['dataset']})", unit="page") as ph:
             page = render_report(summary, diagnosis, out_dir, diagnosis_note=note)
             ph.done = 1

@@ -24,8 +24,13 @@ from bayesdamper.run.progress import Progress
 
 
 def prepare(data_dir: str | Path, tmax: float):
-    """Load, validate and segment a data set; fit stage 1. Raises DataError on bad input."""
+    """Load, validate and segment a triangular-test data set; fit stage 1. Raises DataError on bad input."""
     ds = load_dataset(data_dir, tmax=tmax)
+    return (ds, *prepare_loaded(ds, tmax))
+
+
+def prepare_loaded(ds, tmax: float):
+    """Segment a loaded data set and fit stage 1: ``(segs, transients, static)``."""
     segs = segment_dataset(ds, tmax=tmax)
     transients = [t for s in segs for t in s.transients]
     plateaus = [p for s in segs for p in s.plateaus]
@@ -35,8 +40,8 @@ def prepare(data_dir: str | Path, tmax: float):
     except SettingsError as err:
         raise DataError(f"{ds.path}: stage 1 from the plateaus gives {err}: the static force-velocity "
                         "characteristic does not follow the orifice law eq. (8) (does the force saturate "
-                        "with speed?)") from None
-    return ds, segs, transients, static
+                        "with speed? try --mode whole-record, whose diagnosis reports it)") from None
+    return segs, transients, static
 
 
 def _worker(args) -> TransientResult:

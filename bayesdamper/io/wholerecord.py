@@ -1,0 +1,133 @@
+"""A whole measured record prepared for identification: decimated, with its displacement as the input.
+
+Records that are not triangular tests (sine, sweep, multisine, random) have no plateaus and no clean
+transients; they are identified as a whole. :func:`record_window` turns a :class:`TestRecord` into a
+:class:`RecordWindow`: the force and the displacement decimated by an integer factor with a zero-phase
+FIR anti-alias filter (so the likelihood sees at most ``MAX_SAMPLES`` samples), the decimated
+displacement becoming the piecewise-linear input of eq. (7). The factor and the rate used are stored
+with every result.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from bayesdamper.core.errors import DataError
+
+#: Largest number of samples of one record the likelihood sees. The measured displacement is the input
+#: knot by knot and the solver restarts at every knot, so a forward solve costs 2-3 µs per sample
+#: (benchmarks/whole_record.py): 2000 samples keep one log-posterior evaluation near 5 ms.
+MAX_SAMPLES = 2000
+#: Lowest sample rate a record is decimated to [Hz]: the compressibility transients of eq. (7) last
+#: tenths of a second (rig-A, the paper's Fig. 8), so 100 Hz keeps ≥ 10 samples on their rise.
+MIN_RATE_HZ = 100.0
+#: Fewest samples a record needs to be identified as a whole (seven parameters, a noise model).
+MIN_WHOLE_SAMPLES = 200
+
+
+@dataclass(frozen=True)
+class RecordWindow:
+    """One record (or a stated part of it) ready for whole-record identification.
+
+    Attributes
+    ----------
+    id : str
+        Identifier (the record name, or ``name_w<k>`` for a window).
+    test : str
+        Record name.
+    time, force : ndarray, shape (n,)
+        Decimated sample times [s] and measured force [N].
+    displacement : ndarray, shape (n,)
+        Decimated measured displacement [m]: the knots of the piecewise-linear input.
+    decimation : int
+        Integer decimation factor applied to the record.
+    rate_hz : float
+        Sample rate after decimation [Hz].
+    kind : str
+        Record kind of :mod:`bayesdamper.io.recordkind` ("sine", "triangular", "other").
+    description : str
+        One line describing the record.
+    """
+
+    id: str
+    test: str
+    time: np.ndarray
+    force: np.ndarray
+    displacement: np.ndarray
+    decimation: int
+    rate_hz: float
+    kind: str = "other"
+    description: str = ""
+
+    def knots(self) -> tuple[np.ndarray, np.ndarray]:
+        """Knots of the piecewise-linear input eq. (7) is driven by: midway between samples, displacement
+        from a cubic spline through the samples (plus the first and last sample).
+
+        Knots at the samples would give each interval the chord velocity of the interval *before* a
+        sample: a lag of half a sample interval (5 ms at 100 Hz; 2 % of the force of a 1 Hz test at its
+        zero crossings). Midpoint knots centre each constant-velocity piece on its sample.
+        """
+        from scipy.interpolate import CubicSpline
+
+        t = self.time
+        mid = 0.5 * (t[1:] + t[:-1])
+        kt = np.r_[t[0], mid, t[-1]]
+        return kt, CubicSpline(t, self.displacement)(kt)
+
+    def velocity(self) -> np.ndarray:
+        """Piston velocity of the piecewise-linear input at the samples (centred differences) [m/s]."""
+        return np.gradient(self.displacement, self.time)
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "test": self.test, "n_samples": int(self.time.size),
+                "decimation": int(self.decimation), "rate_Hz": float(self.rate_hz), "kind": self.kind,
+                "description": self.description, "t_start_s": float(self.time[0]),
+                "t_end_s": float(self.time[-1])}
+
+
+def decimation_factor(n_samples: int, rate_hz: float, max_samples: int = MAX_SAMPLES,
+                      min_rate_hz: float = MIN_RATE_HZ) -> int:
+    """Smallest integer factor that brings ``n_samples`` to at most ``max_samples``, without going
+    below ``min_rate_hz`` (a record that long is identified at ``min_rate_hz`` with more samples)."""
+    q = int(np.ceil(n_samples / max_samples))
+    q_max = max(1, int(np.floor(rate_hz / min_rate_hz)))
+    return max(1, min(q, q_max))
+
+
+def _decimate(x: np.ndarray, q: int) -> np.ndarray:
+    from scipy.signal import decimate
+
+    if q == 1:
+        return np.array(x, dtype=float)
+    # zero-phase FIR (Hamming, 20 q + 1 taps): no phase shift between force and displacement
+    return decimate(np.asarray(x, dtype=float), q, ftype="fir", zero_phase=True)
+
+
+def record_window(record, *, kind: str = "other", description: str = "", max_samples: int = MAX_SAMPLES,
+                  t_range: tuple[float, float] | None = None, window_id: str | None = None) -> RecordWindow:
+    """Decimate ``record`` (optionally only the samples in ``t_range`` [s]) for whole-record identification.
+
+    Raises
+    ------
+    DataError
+        If fewer than :data:`MIN_WHOLE_SAMPLES` samples remain.
+    """
+    t, y, f = record.time, record.displacement, record.force
+    if t_range is not None:
+        sel = (t >= t_range[0]) & (t <= t_range[1])
+        t, y, f = t[sel], y[sel], f[sel]
+    rate = float(record.sample_rate)
+    q = decimation_factor(t.size, rate, max_samples)
+    td = t[::q]
+    yd = _decimate(y, q)[: td.size]
+    fd = _decimate(f, q)[: td.size]
+    # the filter's edge transients: drop the first and last filter half-lengths (10 decimated samples)
+    edge = 10 if q > 1 else 0
+    if edge:
+        td, yd, fd = td[edge:-edge], yd[edge:-edge], fd[edge:-edge]
+    if td.size < MIN_WHOLE_SAMPLES:
+        raise DataError(f"{record.path}: only {td.size} samples after decimation by {q}; whole-record "
+                        f"identification needs at least {MIN_WHOLE_SAMPLES}")
+    return RecordWindow(window_id or record.name, record.name, td, fd, yd, q, rate / q, kind, description)
