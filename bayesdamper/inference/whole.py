@@ -15,20 +15,30 @@ library priors; the force offset F_0 is uniform on ±``OFFSET_BOX`` times the la
 The likelihood is the one of stage 2 (:mod:`bayesdamper.inference.likelihood`) on the eq. (9) residual of
 the whole (decimated) record: white or AR(1) noise with the scale marginalised. The simulation starts at
 the record's first sample in the quasi-static state of its initial velocity.
+
+Forward model: the quintic spline through the (decimated) displacement samples drives eq. (7)
+(:func:`bayesdamper.physics.spline_input.solve_spline`); RODAS4 steps across the samples with its own
+step-size control. The tolerances are relative to the record's pressure scale (largest |F| / A_P), so a
+record's force is computed to about 1e-5 of its size whatever the damper (tests/test_whole_kernel.py:
+rel. L2 error <= 1e-4 against scipy's Radau at rtol 1e-11). The solves release the GIL: a batch of walkers
+is evaluated on ``WHOLE_THREADS`` threads when the process is not itself a worker of a process pool.
 """
 
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from bayesdamper.core.params import DamperConstants
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace, ParameterSpec
-from bayesdamper.physics.augmented import solve_augmented
 from bayesdamper.physics.effect_vector import EFFECT_SLOTS
 from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.physics.spline_input import solve_spline, spline_coefficients
 
 #: Upper end of the flow coefficients' uniform prior, in units of the coefficient that alone carries the
 #: largest measured force at the largest measured flow: 100x leaves two decades above anything the
@@ -36,9 +46,14 @@ from bayesdamper.physics.effects import EFFECTS
 STATIC_BOX = 100.0
 #: Half-width of the force offset's uniform prior, in units of the largest measured |force|.
 OFFSET_BOX = 1.0
-#: Kernel tolerances inside the whole-record likelihood (those of stage 2's transients).
-WHOLE_RTOL = 1e-6
-WHOLE_ATOL = 1.0  # [Pa]
+#: Kernel tolerances inside the whole-record likelihood: relative, and absolute in units of the record's
+#: pressure scale (largest |F| / A_P). Rel. L2 error of the force 1e-5 - 3e-5 against Radau at rtol 1e-11
+#: on sines and multisines at 100-1000 Hz (benchmarks/whole_record.py, tests/test_whole_kernel.py); ten
+#: times tighter costs twice the steps for an error far below any force noise.
+WHOLE_RTOL = 1e-5
+WHOLE_ATOL_REL = 3e-5
+#: Threads evaluating one batch of walkers (None: every core this process may use, at most 4).
+WHOLE_THREADS = None
 STATIC_NAMES = ("C_L12", "C_Q12", "C_L21", "C_Q21")
 STATIC_UNITS = ("kg m^-4 s^-1", "kg m^-7", "kg m^-4 s^-1", "kg m^-7")
 OFFSET_NAME = "offset_N"
@@ -101,18 +116,20 @@ class WholeRecordProblem:
     damper: DamperConstants
     base_effects: np.ndarray = field(default_factory=lambda: np.zeros(len(EFFECT_SLOTS)))
     rtol: float = WHOLE_RTOL
-    atol: float = WHOLE_ATOL
+    atol: float | None = None  # [Pa]; None: WHOLE_ATOL_REL times the record's pressure scale
 
     def __post_init__(self) -> None:
         w = self.window
         kt = np.ascontiguousarray(w.time, dtype=float)
         object.__setattr__(self, "time", kt)
         object.__setattr__(self, "force", np.ascontiguousarray(w.force, dtype=float))
-        knot_t, knot_y = w.knots()
-        knot_t, knot_y = np.ascontiguousarray(knot_t, dtype=float), np.ascontiguousarray(knot_y, dtype=float)
-        object.__setattr__(self, "knots", (knot_t, knot_y))
-        object.__setattr__(self, "v0", float((knot_y[1] - knot_y[0]) / (knot_t[1] - knot_t[0])))
+        sp_t, sp_c = spline_coefficients(kt, w.displacement)
+        object.__setattr__(self, "spline", (sp_t, sp_c))
+        object.__setattr__(self, "v0", float(sp_c[0, 1]))
         object.__setattr__(self, "segment_id", w.id)
+        if self.atol is None:
+            scale = float(np.max(np.abs(self.force))) / self.damper.piston_area if self.force.size else 0.0
+            object.__setattr__(self, "atol", max(WHOLE_ATOL_REL * scale, 1e-6))
 
     def simulate(self, flow4: np.ndarray, alpha_v: float, p_r: float, eff: np.ndarray | None = None,
                  offset: float = 0.0) -> tuple[np.ndarray, bool]:
@@ -124,10 +141,10 @@ class WholeRecordProblem:
         eff = self.base_effects if eff is None else np.ascontiguousarray(eff, dtype=float)
         d = self.damper
         dp0 = quasi_static_dp(flow4, d.piston_area * self.v0)
-        kt, ky = self.knots
-        force, status = solve_augmented(self.time, kt, ky, float(kt[0]), dp0, self.v0, d.piston_area,
+        sp_t, sp_c = self.spline
+        force, status, _ = solve_spline(self.time, sp_t, sp_c, float(sp_t[0]), dp0, d.piston_area,
                                         d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus, flow4,
-                                        float(alpha_v), float(p_r), eff, self.rtol, self.atol)
+                                        float(alpha_v), float(p_r), eff, float(self.rtol), float(self.atol))
         ok = status == 0 and bool(np.all(np.isfinite(force)))
         return force + offset, ok
 
@@ -181,8 +198,13 @@ class WholeLogPosterior:
         return float(ll) if np.isfinite(ll) else -np.inf
 
     def batch(self, thetas: np.ndarray) -> np.ndarray:
-        """Row by row (emcee ``vectorize=True``); the solve itself is compiled."""
-        return np.array([self(t) for t in np.atleast_2d(thetas)])
+        """Row by row (emcee ``vectorize=True``), on :func:`batch_threads` threads (the solves release the
+        GIL; the rows are independent, so the result does not depend on the number of threads)."""
+        rows = np.atleast_2d(thetas)
+        pool = _pool()
+        if pool is None or len(rows) < 2:
+            return np.array([self(t) for t in rows])
+        return np.array(list(pool.map(self, rows)))
 
     def cost(self, theta: np.ndarray) -> float:
         """Eq. (9) J of the whole record at ``theta`` (inf for a failed solve)."""
@@ -191,6 +213,33 @@ class WholeLogPosterior:
             return math.inf
         f = self.problem.force
         return float(np.sqrt(r @ r) / np.sqrt(f @ f))
+
+
+_POOL: list = []
+
+
+def batch_threads() -> int:
+    """Threads for one batch of walkers: ``WHOLE_THREADS``, else the cores this process may use (at most 4),
+    and 1 inside a worker process of a pool (its siblings already use the cores)."""
+    if WHOLE_THREADS is not None:
+        return max(1, int(WHOLE_THREADS))
+    if mp.parent_process() is not None:
+        return 1
+    try:
+        n = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not on Linux
+        n = os.cpu_count() or 1
+    return max(1, min(n, 4))
+
+
+def _pool() -> ThreadPoolExecutor | None:
+    n = batch_threads()
+    if n <= 1:
+        return None
+    if not _POOL or _POOL[0][0] != n:
+        _POOL.clear()
+        _POOL.append((n, ThreadPoolExecutor(max_workers=n, thread_name_prefix="whole-batch")))
+    return _POOL[0][1]
 
 
 def phi_spec() -> ParameterSpec:

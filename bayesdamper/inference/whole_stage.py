@@ -35,6 +35,14 @@ START_P_R = (3e4, 1e5, 3e5, 1e6)
 #: coefficients (away from reversals, where compressibility dominates the force).
 QUASI_STATIC_SPEED = 0.3
 MODE = "whole-record"
+#: Kernel rtol of the least-squares fit and of the Gauss-Newton covariance (the absolute tolerance scaled
+#: alike). The adaptive solver's force moves by about its tolerance when a parameter change shifts its
+#: steps; finite differences need that far below their step, or the fit stops near its start on the
+#: (α_V, p_R) ridge. A few hundred solves, so the tighter tolerance costs little.
+FIT_RTOL = 1e-7
+#: Relative finite-difference step of the least-squares Jacobian and of the Gauss-Newton covariance:
+#: solver noise 1e-4 of the difference, truncation error of central differences 1e-6.
+FD_STEP = 1e-3
 
 
 @dataclass
@@ -76,8 +84,18 @@ def quasi_static_start(problem: WholeRecordProblem, offset: bool) -> tuple[np.nd
     return flow4, off
 
 
+def fine(logpost: WholeLogPosterior) -> WholeLogPosterior:
+    """``logpost`` with its kernel at :data:`FIT_RTOL` (absolute tolerance scaled alike)."""
+    p = logpost.problem
+    if p.rtol <= FIT_RTOL:
+        return logpost
+    tight = WholeRecordProblem(p.window, p.damper, p.base_effects, FIT_RTOL, p.atol * FIT_RTOL / p.rtol)
+    return WholeLogPosterior(tight, logpost.wspace)
+
+
 def point_fit(logpost: WholeLogPosterior, offset_start: float, flow4: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares optimum of eq. (9) over the model part of θ (bounded, from the best grid start)."""
+    """Least-squares optimum of eq. (9) over the model part of θ (bounded, from the best grid start; the
+    fit itself at :data:`FIT_RTOL`)."""
     from scipy.optimize import least_squares
 
     ws = logpost.wspace
@@ -98,13 +116,15 @@ def point_fit(logpost: WholeLogPosterior, offset_start: float, flow4: np.ndarray
     fmag = float(np.sqrt(np.mean(logpost.problem.force**2)))
     pad = np.zeros(logpost.space.ndim - ws.n_model)
 
+    tight = fine(logpost)
+
     def resid(x):
-        r = logpost.residual(np.r_[x, pad])
+        r = tight.residual(np.r_[x, pad])
         return r if r is not None else np.full(logpost.problem.force.size, 10 * fmag)
 
     eps = 1e-9 * (hi - lo)
     x0 = np.clip(best, lo + eps, hi - eps)
-    sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=scale, diff_step=1e-6, max_nfev=400)
+    sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=scale, diff_step=FD_STEP, max_nfev=400)
     x = sol.x if logpost.cost(np.r_[sol.x, pad]) <= best_j else best
     return x, logpost.cost(np.r_[x, pad])
 
@@ -112,10 +132,12 @@ def point_fit(logpost: WholeLogPosterior, offset_start: float, flow4: np.ndarray
 def gauss_newton_covariance(logpost: WholeLogPosterior, x: np.ndarray) -> np.ndarray:
     """Covariance of the least-squares optimum ``x`` (model part of θ): σ² (JᵀJ)⁺ with J the Jacobian of the
     residual by central differences and σ² = SSE / (n − p); the pseudo-inverse keeps a ridge (α_V, p_R
-    barely constrained by a slow record) from spoiling the flow coefficients' errors."""
+    barely constrained by a slow record) from spoiling the flow coefficients' errors. Solves at
+    :data:`FIT_RTOL`."""
+    logpost = fine(logpost)
     pad = np.zeros(logpost.space.ndim - x.size)
     r0 = logpost.residual(np.r_[x, pad])
-    h = 1e-6 * np.maximum(np.abs(x), 1e-3 * (logpost.space.upper[:x.size] - logpost.space.lower[:x.size]))
+    h = FD_STEP * np.maximum(np.abs(x), 1e-3 * (logpost.space.upper[:x.size] - logpost.space.lower[:x.size]))
     jac = np.empty((r0.size, x.size))
     for k in range(x.size):
         e = np.zeros(x.size)
