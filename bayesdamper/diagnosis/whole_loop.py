@@ -18,9 +18,12 @@ Records that are not triangular tests (sine, sweep, multisine, random) are diagn
    on one half and its eq. (9) J is computed on the other, both ways (2 folds per record). A candidate is
    selected when the paired held-out improvement ``d = J_out(current) − J_out(current + c)`` over all
    folds has a one-sided t statistic above the Bonferroni-corrected quantile
-   ``t_{n−1}(1 − FAMILY_ALPHA / K)`` for the K candidates of the round: a 5 % family-wise chance of
-   adding an effect when none helps. Rounds continue with the best candidate until none passes or
-   ``MAX_ADDED`` are in. "None" is a valid answer. The rule has no constant fitted to any data set.
+   ``t_{n−1}(1 − FAMILY_ALPHA / K)`` for the K candidates of the round (a 5 % family-wise chance of
+   adding an effect when none helps) and the gain is at least ``MIN_RELATIVE_GAIN`` of the held-out J
+   (practical significance under model error). Rounds continue with the best candidate until none passes or
+   ``MAX_ADDED`` are in; among the candidates that pass, the largest held-out gain is taken. Then each
+   selected effect must still pass the same rule against the model without it (a backward check), or
+   it is dropped. "None" is a valid answer. The rule has no constant fitted to any data set.
 """
 
 from __future__ import annotations
@@ -40,6 +43,13 @@ OFFSET = "offset"
 OFFSET_READING = "a constant force with no motion: load-cell zero error or a preload (gas spring at mid-stroke)"
 #: Family-wise false-selection rate of one round of the rule (module docstring).
 FAMILY_ALPHA = 0.05
+#: Smallest held-out gain, as a fraction of the current held-out J, for which an effect is named. Model
+#: error is the normal case on measured data: any flexible addition then absorbs a little of it, with a
+#: gain that more folds make "significant" but not physical. Below 5 % of the remaining error the library's
+#: effects are interchangeable approximations of that error, not findings (a stated practical-significance
+#: floor, not fitted: on every data set in the tests and on lab-MR, selected gains are >= 25 % and rejected
+#: ones <= 2 %, so any floor between 2 % and 25 % gives the same answers).
+MIN_RELATIVE_GAIN = 0.05
 #: Most effects added to eq. (7) by the loop.
 MAX_ADDED = 3
 #: Fraction of the largest |v| below which samples count as "near a reversal" (jump finding) and above
@@ -59,6 +69,11 @@ class ModelSpec:
 
     def add(self, name: str) -> ModelSpec:
         return replace(self, offset=True) if name == OFFSET else replace(self, effects=(*self.effects, name))
+
+    def remove(self, name: str) -> ModelSpec:
+        if name == OFFSET:
+            return replace(self, offset=False)
+        return replace(self, effects=tuple(e for e in self.effects if e != name))
 
     def has(self, name: str) -> bool:
         return self.offset if name == OFFSET else name in self.effects
@@ -119,9 +134,14 @@ def _full_task(args) -> dict:
     z = _normal_quantile(0.5 + mass / 2)
     params = {}
     for k, s in enumerate(lp.space.specs[:x.size]):
-        lo, hi = x[k] - z * sd[k], x[k] + z * sd[k]
+        # the interval cannot leave the prior box (a flat direction would otherwise overflow exp)
+        lo = max(x[k] - z * sd[k], lp.space.lower[k])
+        hi = min(x[k] + z * sd[k], lp.space.upper[k])
         conv = math.exp if s.log else float
-        params[s.name] = {"median": conv(x[k]), "lo": conv(lo), "hi": conv(hi), "unit": s.unit}
+        width = lp.space.upper[k] - lp.space.lower[k]
+        at_bound = min(x[k] - lp.space.lower[k], lp.space.upper[k] - x[k]) < 1e-3 * width
+        params[s.name] = {"median": conv(x[k]), "lo": conv(lo), "hi": conv(hi), "unit": s.unit,
+                          "at_prior_bound": bool(at_bound)}
     return {"theta": x, "J": j, "force": force, "params": params}
 
 
@@ -179,8 +199,9 @@ def paired_evidence(j_current: np.ndarray, j_candidate: np.ndarray, n_candidates
     mean = float(np.mean(d))
     t = mean / se if se > 0 else (math.inf if mean > 0 else -math.inf)
     crit = float(student.ppf(1.0 - FAMILY_ALPHA / max(n_candidates, 1), n - 1))
-    return {"mean_gain": mean, "se": se, "t": t, "t_crit": crit, "passes": bool(t > crit and mean > 0),
-            "n_folds": n, "relative_gain": mean / float(np.mean(j_current[ok]))}
+    rel = mean / float(np.mean(j_current[ok]))
+    return {"mean_gain": mean, "se": se, "t": t, "t_crit": crit, "passes": bool(t > crit and rel >= MIN_RELATIVE_GAIN),
+            "n_folds": n, "relative_gain": rel}
 
 
 def select_model(windows, damper, candidates: list[str], runner: FoldRunner, progress=None) -> tuple[ModelSpec, list]:
@@ -199,7 +220,8 @@ def select_model(windows, damper, candidates: list[str], runner: FoldRunner, pro
             ev = paired_evidence(j_cur, jc, len(cands))
             table.append({"effect": c, "model": s.label(), "J_held_out_mean": float(np.nanmean(jc)),
                           "J_held_out": [float(v) for v in jc], **ev})
-        table.sort(key=lambda r: -r["t"] if np.isfinite(r["t"]) else math.inf)
+        # the gate is the t test; among the candidates that pass it, the largest held-out gain wins
+        table.sort(key=lambda r: (not r["passes"], -r["mean_gain"] if np.isfinite(r["mean_gain"]) else math.inf))
         best = table[0]
         rounds.append({"model_before": current.label(), "J_held_out_mean_before": float(np.nanmean(j_cur)),
                        "candidates": table, "selected": best["effect"] if best["passes"] else None})
@@ -210,6 +232,18 @@ def select_model(windows, damper, candidates: list[str], runner: FoldRunner, pro
             break
         current = current.add(best["effect"])
         j_cur = scores[cands.index(best["effect"])]
+    # backward check: an earlier selection that a later one made redundant is dropped by the same rule
+    removed = []
+    for name in list(current.names) if len(current.names) > 1 else []:
+        without = current.remove(name)
+        (j_without,) = cross_validate(windows, damper, [without], runner)
+        ev = paired_evidence(j_without, j_cur, len(current.names))
+        removed.append({"effect": name, "model_without": without.label(), **ev, "kept": ev["passes"]})
+        if not ev["passes"]:
+            current, j_cur = without, j_without
+    if removed:
+        rounds.append({"model_before": current.label(), "backward": removed,
+                       "J_held_out_mean_before": float(np.nanmean(j_cur)), "candidates": [], "selected": None})
     return current, rounds
 
 

@@ -96,6 +96,11 @@ def report_text(d: dict) -> str:
     else:
         lines.append("Static characteristic: no offset, jump at v = 0 or saturation beyond the noise.")
     for k, r in enumerate(d["rounds"], 1):
+        if "backward" in r:
+            for b in r["backward"]:
+                lines.append(f"Backward check of {b['effect']}: held-out gain {b['mean_gain']:.4f} ± {b['se']:.4f} "
+                             f"(t {b['t']:.2f} vs {b['t_crit']:.2f}) -> {'kept' if b['kept'] else 'dropped'}")
+            continue
         c = r["candidates"][0]
         lines.append(f"Round {k} ({r['model_before']}): best candidate {c['effect']}, held-out J "
                      f"{r['J_held_out_mean_before']:.4f} -> {c['J_held_out_mean']:.4f} (gain {c['mean_gain']:.4f} "
