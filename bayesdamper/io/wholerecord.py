@@ -4,8 +4,10 @@ Records that are not triangular tests (sine, sweep, multisine, random) have no p
 transients; they are identified as a whole. :func:`record_window` turns a :class:`TestRecord` into a
 :class:`RecordWindow`: the force and the displacement decimated by an integer factor with a zero-phase
 FIR anti-alias filter (so the likelihood sees at most ``MAX_SAMPLES`` samples), the decimated
-displacement becoming the piecewise-linear input of eq. (7). The factor and the rate used are stored
-with every result.
+displacement becoming the input of eq. (7) (the quintic spline through the decimated samples:
+:mod:`bayesdamper.physics.spline_input`). A record longer than ``MAX_WINDOW_S`` is identified on its central
+``MAX_WINDOW_S`` seconds. The factor, the rate, the window and the rules that chose them are stored with
+every result (:meth:`RecordWindow.as_dict`).
 """
 
 from __future__ import annotations
@@ -16,15 +18,21 @@ import numpy as np
 
 from bayesdamper.core.errors import DataError
 
-#: Largest number of samples of one record the likelihood sees. The measured displacement is the input
-#: knot by knot and the solver restarts at every knot, so a forward solve costs 2-3 µs per sample
-#: (benchmarks/whole_record.py): 2000 samples keep one log-posterior evaluation near 5 ms.
+#: Largest number of samples of one record the likelihood sees (above it the record is decimated).
 MAX_SAMPLES = 2000
 #: Lowest sample rate a record is decimated to [Hz]: the compressibility transients of eq. (7) last
 #: tenths of a second (rig-A, the paper's Fig. 8), so 100 Hz keeps ≥ 10 samples on their rise.
 MIN_RATE_HZ = 100.0
 #: Fewest samples a record needs to be identified as a whole (seven parameters, a noise model).
 MIN_WHOLE_SAMPLES = 200
+#: Longest stretch of a record identified [s]; a longer record is identified on its central MAX_WINDOW_S.
+#: The forward solve steps with the record's dynamics, not its samples, so its cost grows with the
+#: duration whatever the decimation: about 80 µs per second of a 0.3-4 Hz multisine on 2 cores
+#: (benchmarks/whole_record.py), and an identification needs ~1e5 solves. 12 s keep a 30 s record at
+#: 1 kHz within a minute, and hold 12 cycles of a 1 Hz test (posterior widths grow as sqrt(T / 12 s)).
+MAX_WINDOW_S = 12.0
+DECIMATION_RULE = (f"smallest integer factor giving at most {MAX_SAMPLES} samples, not below {MIN_RATE_HZ:g} Hz; "
+                   "zero-phase FIR anti-alias filter")
 
 
 @dataclass(frozen=True)
@@ -49,6 +57,10 @@ class RecordWindow:
         Record kind of :mod:`bayesdamper.io.recordkind` ("sine", "triangular", "other").
     description : str
         One line describing the record.
+    record_span : (float, float) or None
+        First and last sample time of the whole record [s].
+    window_rule : str
+        Why only part of the record is used ("" when all of it is).
     """
 
     id: str
@@ -60,6 +72,8 @@ class RecordWindow:
     rate_hz: float
     kind: str = "other"
     description: str = ""
+    record_span: tuple[float, float] | None = None  # (first, last) sample time of the whole record [s]
+    window_rule: str = ""  # why only part of the record is used ("" when it all is)
 
     def knots(self) -> tuple[np.ndarray, np.ndarray]:
         """Knots of the piecewise-linear input eq. (7) is driven by: midway between samples, displacement
@@ -81,10 +95,17 @@ class RecordWindow:
         return np.gradient(self.displacement, self.time)
 
     def as_dict(self) -> dict:
-        return {"id": self.id, "test": self.test, "n_samples": int(self.time.size),
-                "decimation": int(self.decimation), "rate_Hz": float(self.rate_hz), "kind": self.kind,
-                "description": self.description, "t_start_s": float(self.time[0]),
-                "t_end_s": float(self.time[-1])}
+        d = {"id": self.id, "test": self.test, "n_samples": int(self.time.size),
+             "decimation": int(self.decimation), "rate_Hz": float(self.rate_hz), "kind": self.kind,
+             "description": self.description, "t_start_s": float(self.time[0]),
+             "t_end_s": float(self.time[-1]), "decimation_rule": DECIMATION_RULE,
+             "input": "quintic interpolating spline through the decimated displacement samples"}
+        if self.record_span is not None:
+            d["record_span_s"] = [float(self.record_span[0]), float(self.record_span[1])]
+        d["windowed"] = bool(self.window_rule)
+        if self.window_rule:
+            d["window_rule"] = self.window_rule
+        return d
 
 
 def decimation_factor(n_samples: int, rate_hz: float, max_samples: int = MAX_SAMPLES,
@@ -106,8 +127,10 @@ def _decimate(x: np.ndarray, q: int) -> np.ndarray:
 
 
 def record_window(record, *, kind: str = "other", description: str = "", max_samples: int = MAX_SAMPLES,
-                  t_range: tuple[float, float] | None = None, window_id: str | None = None) -> RecordWindow:
-    """Decimate ``record`` (optionally only the samples in ``t_range`` [s]) for whole-record identification.
+                  t_range: tuple[float, float] | None = None, window_id: str | None = None,
+                  max_window_s: float = MAX_WINDOW_S) -> RecordWindow:
+    """Decimate ``record`` (only the samples in ``t_range`` [s] if given, else at most its central
+    ``max_window_s`` seconds) for whole-record identification.
 
     Raises
     ------
@@ -115,6 +138,14 @@ def record_window(record, *, kind: str = "other", description: str = "", max_sam
         If fewer than :data:`MIN_WHOLE_SAMPLES` samples remain.
     """
     t, y, f = record.time, record.displacement, record.force
+    span = (float(t[0]), float(t[-1]))
+    rule = ""
+    if t_range is None and span[1] - span[0] > max_window_s:
+        mid = 0.5 * (span[0] + span[1])
+        t_range = (mid - 0.5 * max_window_s, mid + 0.5 * max_window_s)
+        rule = f"the central {max_window_s:g} s of a longer record"
+    elif t_range is not None:
+        rule = f"samples in [{t_range[0]:g}, {t_range[1]:g}] s as requested"
     if t_range is not None:
         sel = (t >= t_range[0]) & (t <= t_range[1])
         t, y, f = t[sel], y[sel], f[sel]
@@ -130,4 +161,5 @@ def record_window(record, *, kind: str = "other", description: str = "", max_sam
     if td.size < MIN_WHOLE_SAMPLES:
         raise DataError(f"{record.path}: only {td.size} samples after decimation by {q}; whole-record "
                         f"identification needs at least {MIN_WHOLE_SAMPLES}")
-    return RecordWindow(window_id or record.name, record.name, td, fd, yd, q, rate / q, kind, description)
+    return RecordWindow(window_id or record.name, record.name, td, fd, yd, q, rate / q, kind, description, span,
+                        rule)
