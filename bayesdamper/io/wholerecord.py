@@ -27,9 +27,9 @@ MIN_RATE_HZ = 100.0
 MIN_WHOLE_SAMPLES = 200
 #: Longest stretch of a record identified [s]; a longer record is identified on its central MAX_WINDOW_S.
 #: The forward solve steps with the record's dynamics, not its samples, so its cost grows with the
-#: duration whatever the decimation: about 80 µs per second of a 0.3-4 Hz multisine on 2 cores
-#: (benchmarks/whole_record.py), and an identification needs ~1e5 solves. 12 s keep a 30 s record at
-#: 1 kHz within a minute, and hold 12 cycles of a 1 Hz test (posterior widths grow as sqrt(T / 12 s)).
+#: duration whatever the decimation: about 0.14 ms per second of a 0.3-4 Hz multisine on one core
+#: (benchmarks/whole_record.py), and an identification needs ~1e5 solves. 12 s hold 12 cycles of a 1 Hz
+#: test (posterior widths grow as sqrt(T / 12 s)); 12 s records are identified whole.
 MAX_WINDOW_S = 12.0
 DECIMATION_RULE = (f"smallest integer factor giving at most {MAX_SAMPLES} samples, not below {MIN_RATE_HZ:g} Hz; "
                    "zero-phase FIR anti-alias filter")
