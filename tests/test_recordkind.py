@@ -276,3 +276,14 @@ def test_implausible_velocity(tmp_path):
     t, y = sine(rate=10000, duration=1.0, amp=0.06, freq=100.0)
     raises_one_line(via_csv(tmp_path, t, y, 100 + 1e3 * np.sin(2 * np.pi * 100 * t), "fast"),
                     "displacement_m implies velocities up to 37", "m/s: wrong unit or time column?")
+
+
+def test_inspect_record_checks_and_classifies_like_the_two_calls():
+    """``inspect_record`` (one analysis) gives what check_record_quality + classify_record give."""
+    from bayesdamper.io.dataset import load_dataset
+    from bayesdamper.io.recordkind import inspect_record
+
+    for folder in ("data/rig-A", "data/lab-MR"):
+        for r in load_dataset(ROOT / folder, tmax=None).records[:3]:
+            check_record_quality(r)
+            assert inspect_record(r) == classify_record(r)

@@ -35,6 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from bayesdamper.diagnosis.residual import _lag1
 from bayesdamper.inference.whole import WholeLogPosterior, WholeRecordProblem, WholeSpace, static_scales
 from bayesdamper.inference.whole_stage import gauss_newton_covariance, point_fit, quasi_static_start
 from bayesdamper.physics.effect_vector import pack_effects
@@ -145,11 +146,6 @@ def _full_task(args) -> dict:
     return {"theta": x, "J": j, "force": force, "params": params}
 
 
-def _lag1(r: np.ndarray) -> float:
-    r = r - r.mean()
-    return float(r[1:] @ r[:-1] / (r @ r)) if r @ r > 0 else 0.0
-
-
 def _normal_quantile(p: float) -> float:
     from scipy.stats import norm
 
@@ -178,7 +174,7 @@ class FoldRunner:
 
 def cross_validate(windows, damper, specs: list[ModelSpec], runner: FoldRunner) -> list[np.ndarray]:
     """Held-out J per fold (2 per record: fit on one half, score on the other) for every model of ``specs``."""
-    folds = [(a, b) for w in windows for a, b in (halves(w), halves(w)[::-1])]
+    folds = [f for a, b in map(halves, windows) for f in ((a, b), (b, a))]
     tasks = [(a, b, damper, s) for s in specs for a, b in folds]
     out = runner.map(_fold_task, tasks)
     n = len(folds)
@@ -261,8 +257,7 @@ def _regress(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     coef, *_ = np.linalg.lstsq(x, y, rcond=None)
     r = y - x @ coef
     n, p = x.shape
-    rho = float(r[1:] @ r[:-1] / (r @ r)) if r @ r > 0 else 0.0
-    rho = min(max(rho, 0.0), 0.99)
+    rho = min(max(_lag1(r), 0.0), 0.99)
     n_eff = max(n * (1 - rho) / (1 + rho), p + 1.0)
     s2 = float(r @ r) / max(n - p, 1) * n / n_eff
     cov = s2 * np.linalg.pinv(x.T @ x)

@@ -18,7 +18,14 @@ from bayesdamper.core.params import DamperConstants
 from bayesdamper.inference import posterior as post
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
-from bayesdamper.inference.stage2 import N_PREDICTIVE, THIN_PER_TAU, StageTwoSettings, summarise, task_seed
+from bayesdamper.inference.stage2 import (
+    N_PREDICTIVE,
+    THIN_PER_TAU,
+    StageTwoSettings,
+    TransientResult,
+    summarise,
+    task_seed,
+)
 from bayesdamper.inference.whole import (
     STATIC_NAMES,
     WholeLogPosterior,
@@ -46,16 +53,10 @@ FD_STEP = 1e-3
 
 
 @dataclass
-class WholeResult:
-    """What one record's identification returns (plain arrays, picklable); see ``TransientResult``."""
+class WholeResult(TransientResult):
+    """What one record's identification returns: a ``TransientResult`` of the whole window, plus the
+    decimated displacement [m] that drove it (for the loop figures)."""
 
-    entry: dict
-    names: tuple
-    chains: np.ndarray
-    time: np.ndarray
-    force: np.ndarray
-    band: np.ndarray
-    ls_force: np.ndarray
     displacement: np.ndarray
 
 

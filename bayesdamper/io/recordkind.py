@@ -27,7 +27,7 @@ from scipy.signal.windows import tukey
 from bayesdamper.core.errors import DataError
 from bayesdamper.io.dataset import TestRecord
 
-__all__ = ["RecordKind", "check_record_quality", "classify_record"]
+__all__ = ["RecordKind", "check_record_quality", "classify_record", "inspect_record"]
 
 #: Smallest R^2 (of the variance about the best line) of the sine fit. Harmonic distortion d gives R^2 = 1 / (1 + d^2):
 #: 1 % 0.9999, 5 % 0.9975, 7 % 0.995. A triangle fitted by its fundamental: (8/pi^2)^2 / 2 / (1/3) = 0.9855 (rig-A's
@@ -228,7 +228,10 @@ def classify_record(record: TestRecord) -> RecordKind:
     RecordKind
         With a one-line description and the numbers behind it (see :class:`RecordKind`).
     """
-    a = _analyse(record)
+    return _classify(record, _analyse(record))
+
+
+def _classify(record: TestRecord, a: _Analysis) -> RecordKind:
     amp, freq, offset, r2, cycles, _ = a.sine
     if r2 >= SINE_R2 and cycles >= MIN_CYCLES:
         details = {"amplitude_m": amp, "frequency_Hz": freq, "offset_m": offset, "n_cycles": cycles, "fit_r2": r2}
@@ -271,6 +274,12 @@ def check_record_quality(record: TestRecord) -> None:
         ``"<path>: <problem>"``: too few samples, a flat or clipped channel, implausible velocities, or a sine
         shorter than one cycle.
     """
+    _check_basic(record)
+    _check_analysed(record)
+
+
+def _check_basic(record: TestRecord) -> None:
+    """The checks that need no analysis of the displacement's shape."""
     path, t, y, force = record.path, record.time, record.displacement, record.force
     if y.size < MIN_SAMPLES:
         raise DataError(f"{path}: record has {y.size} samples, fewer than the {MIN_SAMPLES} needed for whole-record "
@@ -291,10 +300,21 @@ def check_record_quality(record: TestRecord) -> None:
     v_peak = float(np.percentile(np.abs(np.gradient(y, t)), 99))
     if v_peak > MAX_VELOCITY:
         raise DataError(f"{path}: displacement_m implies velocities up to {v_peak:.3g} m/s: wrong unit or time column?")
-    a = _analyse(record)
+
+
+def _check_analysed(record: TestRecord) -> _Analysis:
+    """The checks that need the displacement analysed; returns the analysis."""
+    t, a = record.time, _analyse(record)
     _, freq, _, r2, cycles, interior = a.sine
     if r2 >= SINE_R2 and interior and MIN_PARTIAL_CYCLES <= cycles < MIN_CYCLES and not a.triangular:
         span = float(t[a.stop - 1] - t[a.start])
         lasts = "lasts" if span >= 0.99 * record.duration else "moves for"
-        raise DataError(f"{path}: record {lasts} {span:.2g} s, less than one cycle of its {freq:#.2g} Hz motion "
-                        f"(need at least one)")
+        raise DataError(f"{record.path}: record {lasts} {span:.2g} s, less than one cycle of its {freq:#.2g} Hz "
+                        f"motion (need at least one)")
+    return a
+
+
+def inspect_record(record: TestRecord) -> RecordKind:
+    """:func:`check_record_quality`, then :func:`classify_record`, analysing the displacement once."""
+    _check_basic(record)
+    return _classify(record, _check_analysed(record))

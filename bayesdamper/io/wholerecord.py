@@ -48,7 +48,7 @@ class RecordWindow:
     time, force : ndarray, shape (n,)
         Decimated sample times [s] and measured force [N].
     displacement : ndarray, shape (n,)
-        Decimated measured displacement [m]: the knots of the piecewise-linear input.
+        Decimated measured displacement [m]: the input (a quintic spline through these samples).
     decimation : int
         Integer decimation factor applied to the record.
     rate_hz : float
@@ -75,23 +75,8 @@ class RecordWindow:
     record_span: tuple[float, float] | None = None  # (first, last) sample time of the whole record [s]
     window_rule: str = ""  # why only part of the record is used ("" when it all is)
 
-    def knots(self) -> tuple[np.ndarray, np.ndarray]:
-        """Knots of the piecewise-linear input eq. (7) is driven by: midway between samples, displacement
-        from a cubic spline through the samples (plus the first and last sample).
-
-        Knots at the samples would give each interval the chord velocity of the interval *before* a
-        sample: a lag of half a sample interval (5 ms at 100 Hz; 2 % of the force of a 1 Hz test at its
-        zero crossings). Midpoint knots centre each constant-velocity piece on its sample.
-        """
-        from scipy.interpolate import CubicSpline
-
-        t = self.time
-        mid = 0.5 * (t[1:] + t[:-1])
-        kt = np.r_[t[0], mid, t[-1]]
-        return kt, CubicSpline(t, self.displacement)(kt)
-
     def velocity(self) -> np.ndarray:
-        """Piston velocity of the piecewise-linear input at the samples (centred differences) [m/s]."""
+        """Piston velocity at the samples (centred differences) [m/s]."""
         return np.gradient(self.displacement, self.time)
 
     def as_dict(self) -> dict:

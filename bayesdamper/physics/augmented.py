@@ -73,9 +73,6 @@ __all__ = ["MAX_STEPS", "solve_augmented"]
 
 #: Maximum number of accepted steps of one :func:`solve_augmented` call (whole records included).
 MAX_STEPS = 100_000
-#: Mean knot spacing [s] below which a history counts as densely sampled and the step size carries across
-#: knots (a measured displacement used sample by sample; a triangle's knots are seconds apart).
-DENSE_KNOT_S = 0.05
 _MESSAGES = {**STATUS_MESSAGES, STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed"}
 
 
@@ -232,25 +229,6 @@ def _norm2(e0, e1, n_act):
 
 # ----------------------------------------------------------------------------- public kernel
 @njit(cache=True)
-def _initial_step(t, x, xv, tb, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base, comp, lag_tau, vmode,
-                  vtau, vp, atol, atol_x, rtol, n_act):
-    """Hairer-Wanner initial step at the start of a knot segment (RMS norms over the integrated states)."""
-    f0, f1 = _rhs(t, x, xv, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base, comp,
-                  lag_tau, vmode, vtau, vp)
-    sc0 = atol + rtol * abs(x)
-    sc1 = atol_x + rtol * abs(xv)
-    d0 = _norm2(x / sc0, (xv / sc1) if vmode == 2 else 0.0, n_act)
-    d1 = _norm2(f0 / sc0, f1 / sc1, n_act)
-    h0 = min(tb - t, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
-    g0, g1 = _rhs(t + h0, x + h0 * f0, xv + h0 * f1, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v,
-                  p_r, b_base, comp, lag_tau, vmode, vtau, vp)
-    dmax = max(d1, _norm2((g0 - f0) / sc0, (g1 - f1) / sc1, n_act) / h0)
-    if not math.isfinite(dmax):
-        return h0
-    return min(100.0 * h0, max(1e-6, h0 * 1e-3) if dmax <= 1e-15 else (0.01 / dmax) ** 0.2, tb - t)
-
-
-@njit(cache=True)
 def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, flow4, alpha_v, p_r, eff,
                     rtol, atol):
     """Force of the augmented model at the sample times: the compiled hot path (module docstring).
@@ -329,9 +307,6 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
     vfs = v_prev  # corner filter
     i_out = 0
     n_steps = 0
-    h_carry = 0.0
-    # dense knots: on average shorter than DENSE_KNOT_S (sampled histories; triangles have few knots)
-    dense_knots = (knot_t[n_k - 1] - knot_t[k0]) < DENSE_KNOT_S * (n_k - 1 - k0)
     for k in range(k0, n_k - 1):
         ts = max(knot_t[k], t0)
         tk1 = knot_t[k + 1]
@@ -347,13 +322,21 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
             break
         tb = min(tk1, t_end)
         t = ts
-        if h_carry > 0.0 and dense_knots:
-            # knots as dense as the steps (a sampled smooth history): the step size carries over and
-            # the error control rejects it if the knot's velocity change needs a smaller one
-            h = min(h_carry, tb - t)
+        # Hairer-Wanner initial step (RMS norms over the integrated states)
+        f0, f1 = _rhs(t, x, xv, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base, comp,
+                      lag_tau, vmode, vtau, vp)
+        sc0 = atol + rtol * abs(x)
+        sc1 = atol_x + rtol * abs(xv)
+        d0 = _norm2(x / sc0, (xv / sc1) if vmode == 2 else 0.0, n_act)
+        d1 = _norm2(f0 / sc0, f1 / sc1, n_act)
+        h0 = min(tb - t, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
+        g0, g1 = _rhs(t + h0, x + h0 * f0, xv + h0 * f1, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v,
+                      p_r, b_base, comp, lag_tau, vmode, vtau, vp)
+        dmax = max(d1, _norm2((g0 - f0) / sc0, (g1 - f1) / sc1, n_act) / h0)
+        if not math.isfinite(dmax):
+            h = h0
         else:
-            h = _initial_step(t, x, xv, tb, ts, ys, va, es, area, v01, v02, b0, fl, alpha_v, p_r, b_base, comp,
-                              lag_tau, vmode, vtau, vp, atol, atol_x, rtol, n_act)
+            h = min(100.0 * h0, max(1e-6, h0 * 1e-3) if dmax <= 1e-15 else (0.01 / dmax) ** 0.2, tb - t)
         n_acc_seg = 0
         h_acc = 0.0
         err_acc = 1.0
@@ -465,7 +448,6 @@ def solve_augmented(t_out, knot_t, knot_y, t0, dp0, v_prev, area, v01, v02, b0, 
                 reject = False
                 h = h_new
                 break
-        h_carry = h
         # carry the exactly integrated linear states to the next knot
         if lag_tau > 0.0:
             w = va * lag_tau

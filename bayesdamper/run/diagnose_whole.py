@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
+from bayesdamper.diagnosis.candidates import pooled_j
+from bayesdamper.diagnosis.residual import _lag1
 from bayesdamper.diagnosis.whole_loop import (
     FAMILY_ALPHA,
     OFFSET,
@@ -35,15 +37,6 @@ from bayesdamper.run.progress import Progress, count_files
 
 #: Shortest run of samples at rest (|v| below 1 % of its peak) from which the force noise is measured.
 REST_SAMPLES = 50
-
-
-def _pooled(res: list[np.ndarray], forces: list[np.ndarray]) -> float:
-    return float(np.sqrt(sum(float(r @ r) for r in res) / sum(float(f @ f) for f in forces)))
-
-
-def _lag1(r: np.ndarray) -> float:
-    r = r - r.mean()
-    return float(r[1:] @ r[:-1] / (r @ r)) if r @ r > 0 else 0.0
 
 
 def force_noise(window) -> dict:
@@ -162,11 +155,11 @@ def run_whole_diagnosis(plan, out: str, *, seed: int = 0, effects: list[str] | N
         runner.close()
     after = {w.id: static_findings(w, w.force - f["force"]) for w, f in zip(windows, final, strict=True)}
     forces = [w.force for w in windows]
+    noise = {w.id: force_noise(w) for w in windows}
 
     def block(fits):
         res = [w.force - f["force"] for w, f in zip(windows, fits, strict=True)]
-        noise = {w.id: force_noise(w) for w in windows}
-        return {"J_pooled": _pooled(res, forces),
+        return {"J_pooled": pooled_j(res, forces),
                 "J": {w.id: float(f["J"]) for w, f in zip(windows, fits, strict=True)},
                 "residual_lag1": {w.id: _lag1(r) for w, r in zip(windows, res, strict=True)},
                 "residual_rms_N": {w.id: float(np.sqrt(np.mean(r**2))) for w, r in zip(windows, res, strict=True)},
@@ -174,7 +167,6 @@ def run_whole_diagnosis(plan, out: str, *, seed: int = 0, effects: list[str] | N
                                             for w, r in zip(windows, res, strict=True)},
                 "params": {w.id: f["params"] for w, f in zip(windows, fits, strict=True)}}
 
-    noise = {w.id: force_noise(w) for w in windows}
     diagnosis = {
         "dataset": ds.name, "mode": "whole-record", "records": [w.id for w in windows],
         "noise_N": float(np.median([n["sigma_N"] for n in noise.values()])), "noise": noise,

@@ -22,16 +22,14 @@ from bayesdamper.core.errors import SettingsError
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
-from bayesdamper.io.outputs import atomic_write_json, versions
+from bayesdamper.io.outputs import atomic_write_json
 from bayesdamper.run.outfolder import (
-    POSTERIORS_DIR,
     RUN_FILE,
     SUMMARY_FILE,
-    _clear,
     _load_finished,
-    _remove_temporaries,
     check_output_folder,
     fingerprint_basis,
+    open_run,
     settings_fingerprint,
 )
 from bayesdamper.run.plan import TWO_STAGE, WHOLE, check_mode, plan_dataset
@@ -140,23 +138,10 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                                   figures=figures, force=force, progress=progress, now=_now)
     t0 = time.perf_counter()
     ds, out_dir = job.ds, job.out_dir
-    if force:
-        _clear(out_dir)
-    post_dir = out_dir / POSTERIORS_DIR
-    post_dir.mkdir(parents=True, exist_ok=True)
-    if (n := _remove_temporaries(out_dir)):
-        progress(f"removed {n} temporary file(s) left by an interrupted run")
-    prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
-            "dataset_sha256": ds.sha256, "versions": versions(), "tmax_s": tmax, "run_seed": seed,
-            "settings_fingerprint": job.fingerprint}
-    run = {"fingerprint": job.fingerprint, "fingerprint_basis": job.basis,
-           "fingerprint_of": "sha256 of the canonical JSON (sorted keys, no spaces) of fingerprint_basis",
-           "status": "running", "started_utc": _now(), "dataset": ds.name, "dataset_path": str(ds.path),
-           "mode": TWO_STAGE, "mode_reason": job.plan.mode_reason if job.plan else "",
-           "input_sha256": ds.input_hashes(), "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax,
-           "versions": prov["versions"], "workers": workers, "scheduler": scheduler,
-           "transients": [t.id for t in job.transients]}
-    atomic_write_json(out_dir / RUN_FILE, run)
+    post_dir, prov, run = open_run(job, settings, seed=seed, workers=workers, force=force, progress=progress,
+                                   started_utc=_now(), mode=TWO_STAGE, prov_extra={"tmax_s": tmax},
+                                   run_extra={"tmax_s": tmax, "scheduler": scheduler,
+                                              "transients": [t.id for t in job.transients]})
 
     results: list[TransientResult | None] = [
         _load_finished(post_dir / f"{tr.id}.nc", tr, job.fingerprint) for tr in job.transients]

@@ -7,35 +7,29 @@ before validation) are the two-stage job's.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 from bayesdamper.inference.whole_stage import MODE, WholeResult, identify_record
-from bayesdamper.io.outputs import atomic_write_json, versions
-from bayesdamper.run.outfolder import POSTERIORS_DIR, RUN_FILE, SUMMARY_FILE, _clear, _remove_temporaries
+from bayesdamper.io.outputs import atomic_write_json
+from bayesdamper.run.outfolder import (
+    RUN_FILE,
+    SUMMARY_FILE,
+    open_run,
+    read_finished,
+)
 from bayesdamper.run.progress import count_files
+from bayesdamper.run.stages import drift_summary, run_tasks
 
 
 def load_finished_record(path: Path, window, fingerprint: str) -> WholeResult | None:
     """The stored result of ``window`` if ``path`` holds it under ``fingerprint``, else None."""
-    from bayesdamper.inference import posterior as post
-
-    if not path.is_file():
+    s = read_finished(path, window.id, fingerprint)
+    if s is None or s["attrs"].get("mode") != MODE or s["displacement"] is None:
         return None
-    try:
-        s = post.read_transient(path)
-    except Exception as err:  # noqa: BLE001 - an unreadable file is sampled again, and said so
-        print(f"{path}: unreadable ({type(err).__name__}); sampling {window.id} again", file=sys.stderr)
-        return None
-    a = s["attrs"]
-    if (a.get("settings_fingerprint") != fingerprint or a.get("segment_id") != window.id
-            or a.get("mode") != MODE or s["band"] is None or s["displacement"] is None):
-        return None
-    return WholeResult(a["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"], s["ls_force"],
-                       s["displacement"])
+    return WholeResult(s["attrs"]["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"],
+                       s["ls_force"], s["displacement"])
 
 
 def _task(args) -> WholeResult:
@@ -48,7 +42,6 @@ def identify_records(windows, damper, settings, seed: int, workers: int, post_di
     """Whole-record identification of every window, on ``workers`` processes; results in input order."""
     tasks = [(w, damper, settings, seed, None if post_dir is None else post_dir / f"{w.id}.nc", prov)
              for w in windows]
-    out: list = [None] * len(tasks)
 
     def report(i, res, done):
         e = res.entry
@@ -56,48 +49,17 @@ def identify_records(windows, damper, settings, seed: int, workers: int, post_di
                  f"R-hat {e['rhat_max']:.3f}, ESS {e['ess_bulk_min']:.0f}, J {e['J']:.4f}, {e['wall_s']:.1f} s")
         progress.advance()
 
-    if workers <= 1 or len(tasks) <= 1:
-        for i, t in enumerate(tasks):
-            out[i] = _task(t)
-            report(i, out[i], i + 1)
-        return out
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as ex:
-        futs = {ex.submit(_task, t): i for i, t in enumerate(tasks)}
-        try:
-            for done, fut in enumerate(as_completed(futs), 1):
-                i = futs[fut]
-                out[i] = fut.result()
-                report(i, out[i], done)
-        except BaseException:
-            ex.shutdown(wait=True, cancel_futures=True)
-            raise
-    return out
+    return run_tasks(_task, tasks, workers, report)
 
 
 def identify_whole_job(job, settings, *, seed: int, credible_mass: float, workers: int, figures: bool,
                        force: bool, progress, now) -> dict:
     """Identify every record of a planned whole-record data set and write OUT (the only step that writes)."""
-    from bayesdamper.run.stages import drift_summary
-
     t0 = time.perf_counter()
     ds, out_dir, plan = job.ds, job.out_dir, job.plan
-    if force:
-        _clear(out_dir)
-    post_dir = out_dir / POSTERIORS_DIR
-    post_dir.mkdir(parents=True, exist_ok=True)
-    if (n := _remove_temporaries(out_dir)):
-        progress(f"removed {n} temporary file(s) left by an interrupted run")
-    prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
-            "dataset_sha256": ds.sha256, "versions": versions(), "run_seed": seed, "mode": MODE,
-            "settings_fingerprint": job.fingerprint}
-    run = {"fingerprint": job.fingerprint, "fingerprint_basis": job.basis,
-           "fingerprint_of": "sha256 of the canonical JSON (sorted keys, no spaces) of fingerprint_basis",
-           "status": "running", "started_utc": now(), "dataset": ds.name, "dataset_path": str(ds.path),
-           "mode": MODE, "mode_reason": plan.mode_reason, "input_sha256": ds.input_hashes(),
-           "settings": settings.as_dict(), "seed": seed, "versions": prov["versions"], "workers": workers,
-           "records": [w.id for w in plan.windows]}
-    atomic_write_json(out_dir / RUN_FILE, run)
+    post_dir, prov, run = open_run(job, settings, seed=seed, workers=workers, force=force, progress=progress,
+                                   started_utc=now(), mode=MODE, prov_extra={"mode": MODE},
+                                   run_extra={"records": [w.id for w in plan.windows]})
     results = [load_finished_record(post_dir / f"{w.id}.nc", w, job.fingerprint) for w in plan.windows]
     resumed = [w.id for w, r in zip(plan.windows, results, strict=True) if r is not None]
     if resumed:

@@ -132,8 +132,38 @@ def _remove_temporaries(out_dir: Path) -> int:
     return n
 
 
-def _load_finished(path: Path, transient, fingerprint: str) -> TransientResult | None:
-    """The stored result of ``transient`` if ``path`` holds it under ``fingerprint``, else None."""
+def open_run(job, settings, *, seed: int, workers: int, force: bool, progress, started_utc: str, mode: str,
+             prov_extra: dict, run_extra: dict) -> tuple[Path, dict, dict]:
+    """Prepare a validated job's output folder and write its ``run.json`` (status "running").
+
+    Clears results of other settings (``force``), removes temporaries of a killed run, and returns
+    (posteriors folder, provenance stored with every posterior, the run record).
+    """
+    from bayesdamper.io.outputs import atomic_write_json, versions
+
+    ds, out_dir = job.ds, job.out_dir
+    if force:
+        _clear(out_dir)
+    post_dir = out_dir / POSTERIORS_DIR
+    post_dir.mkdir(parents=True, exist_ok=True)
+    if (n := _remove_temporaries(out_dir)):
+        progress(f"removed {n} temporary file(s) left by an interrupted run")
+    prov = {"dataset": ds.name, "dataset_path": str(ds.path), "input_sha256": ds.input_hashes(),
+            "dataset_sha256": ds.sha256, "versions": versions(), "run_seed": seed, **prov_extra,
+            "settings_fingerprint": job.fingerprint}
+    run = {"fingerprint": job.fingerprint, "fingerprint_basis": job.basis,
+           "fingerprint_of": "sha256 of the canonical JSON (sorted keys, no spaces) of fingerprint_basis",
+           "status": "running", "started_utc": started_utc, "dataset": ds.name, "dataset_path": str(ds.path),
+           "mode": mode, "mode_reason": job.plan.mode_reason if job.plan else "",
+           "input_sha256": prov["input_sha256"], "settings": settings.as_dict(), "seed": seed,
+           "versions": prov["versions"], "workers": workers, **run_extra}
+    atomic_write_json(out_dir / RUN_FILE, run)
+    return post_dir, prov, run
+
+
+def read_finished(path: Path, unit_id: str, fingerprint: str) -> dict | None:
+    """The stored posterior of ``unit_id`` (a transient or a whole record) if ``path`` holds it under
+    ``fingerprint`` (:func:`bayesdamper.inference.posterior.read_transient`'s dict), else None."""
     from bayesdamper.inference import posterior as post
 
     if not path.is_file():
@@ -141,11 +171,19 @@ def _load_finished(path: Path, transient, fingerprint: str) -> TransientResult |
     try:
         s = post.read_transient(path)
     except Exception as err:  # noqa: BLE001 - an unreadable file is sampled again, and said so
-        print(f"{path}: unreadable ({type(err).__name__}); sampling {transient.id} again", file=sys.stderr)
+        print(f"{path}: unreadable ({type(err).__name__}); sampling {unit_id} again", file=sys.stderr)
         return None
     a = s["attrs"]
-    if (a.get("settings_fingerprint") != fingerprint or a.get("segment_id") != transient.id
+    if (a.get("settings_fingerprint") != fingerprint or a.get("segment_id") != unit_id
             or not isinstance(a.get("entry"), dict) or s["band"] is None or s["ls_force"] is None):
         return None
-    return TransientResult(a["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"],
+    return s
+
+
+def _load_finished(path: Path, transient, fingerprint: str) -> TransientResult | None:
+    """The stored result of ``transient`` if ``path`` holds it under ``fingerprint``, else None."""
+    s = read_finished(path, transient.id, fingerprint)
+    if s is None:
+        return None
+    return TransientResult(s["attrs"]["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"],
                            s["ls_force"])

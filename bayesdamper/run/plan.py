@@ -14,7 +14,7 @@ from pathlib import Path
 
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.io.dataset import check_duration, load_dataset
-from bayesdamper.io.recordkind import check_record_quality, classify_record
+from bayesdamper.io.recordkind import inspect_record
 from bayesdamper.io.wholerecord import record_window
 
 #: Identification modes accepted by ``--mode``.
@@ -79,9 +79,7 @@ def plan_dataset(data_dir: str | Path, tmax: float, mode: str = "auto") -> DataP
 
     check_mode(mode)
     ds = load_dataset(data_dir, tmax=None)
-    for r in ds.records:
-        check_record_quality(r)
-    kinds = [classify_record(r) for r in ds.records]
+    kinds = [inspect_record(r) for r in ds.records]  # checked (raises on a bad record) and classified
     chosen, reason = choose_mode(kinds, mode)
     if chosen == TWO_STAGE:
         not_tri = [k for k in kinds if k.kind != "triangular"]

@@ -82,8 +82,6 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
     tasks = [(tr, damper, flow, settings, seed,
               None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws)
              for tr in transients]
-    results: list[TransientResult | None] = [None] * len(tasks)
-
     def report(i: int, res: TransientResult, done: int) -> None:
         e = res.entry
         state = "converged" if e["converged"] else "NOT converged"
@@ -97,26 +95,36 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
         from bayesdamper.run.distributed import map_transients
 
         return map_transients(client, tasks, report)
-    if workers <= 1 or len(tasks) == 1:
-        for i, task in enumerate(tasks):
-            progress(f"sampling {task[0].id} ...")
-            results[i] = _worker(task)
-            report(i, results[i], i + 1)
-    else:
+    if workers > 1 and len(tasks) > 1:
         # Compile (or load) the numba kernels once here: forked workers inherit them, and the on-disk
         # cache exists for spawned ones, instead of every worker compiling the same code at once.
         progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings):.1f} s")
-        with _pool(workers) as ex:
-            futs = {ex.submit(_worker, task): i for i, task in enumerate(tasks)}
-            try:
-                for done, fut in enumerate(as_completed(futs), 1):
-                    i = futs[fut]
-                    results[i] = fut.result()
-                    report(i, results[i], done)
-            except BaseException:  # interrupted or failed: do not start the queued transients
-                ex.shutdown(wait=True, cancel_futures=True)
-                raise
-    return results  # type: ignore[return-value]
+    return run_tasks(_worker, tasks, workers, report, before=lambda task: progress(f"sampling {task[0].id} ..."))
+
+
+def run_tasks(worker, tasks: list, workers: int, report, before=None) -> list:
+    """``worker(task)`` for every task, in this process or on a pool of ``workers`` processes; results in
+    input order. ``report(i, result, n_done)`` is called as each finishes, ``before(task)`` before each
+    serial one. An interruption or a failure cancels the queued tasks."""
+    results: list = [None] * len(tasks)
+    if workers <= 1 or len(tasks) <= 1:
+        for i, task in enumerate(tasks):
+            if before is not None:
+                before(task)
+            results[i] = worker(task)
+            report(i, results[i], i + 1)
+        return results
+    with _pool(workers) as ex:
+        futs = {ex.submit(worker, task): i for i, task in enumerate(tasks)}
+        try:
+            for done, fut in enumerate(as_completed(futs), 1):
+                i = futs[fut]
+                results[i] = fut.result()
+                report(i, results[i], done)
+        except BaseException:  # interrupted or failed: do not start the queued tasks
+            ex.shutdown(wait=True, cancel_futures=True)
+            raise
+    return results
 
 
 def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
