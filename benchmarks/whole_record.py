@@ -98,6 +98,7 @@ def main() -> None:
                     help="data-set folder (made if missing)")
     ap.add_argument("--json", action="store_true", help="print a JSON summary as the last line")
     ap.add_argument("--quick", action="store_true", help="skip the full identification")
+    ap.add_argument("--verbose", action="store_true", help="print the sampler status at every convergence check")
     ap.add_argument("--cli", action="store_true", help="also time the CLI (bayesdamper identify --mode whole-record)")
     args = ap.parse_args()
 
@@ -162,7 +163,7 @@ def main() -> None:
     if not args.quick:
         # (c) the full identification, the CLI's default settings
         t0 = time.perf_counter()
-        res = identify_record(w, damper, settings, SEED)
+        res = identify_record(w, damper, settings, SEED, progress=print if args.verbose else None)
         wall = time.perf_counter() - t0
         e = res.entry
         print(f"identify_record: {wall:.1f} s wall, {e['n_steps']} steps x {e['n_walkers']} walkers x "

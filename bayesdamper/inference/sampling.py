@@ -46,9 +46,11 @@ class SamplerSettings:
     max_steps : int
         Step budget per ensemble; reaching it without convergence is reported, not accepted.
     move : str
-        ``"de"`` (default: differential evolution 80% + snooker 20%, which follows the long
-        (log α_V, log p_R) ridges with τ about three times shorter than the stretch move on rig-A)
-        or ``"stretch"`` (emcee's default).
+        ``"de"`` (default: differential evolution 80% + stretch 20%, which follows the long
+        (log α_V, log p_R) ridges with τ about three times shorter than the stretch move on rig-A),
+        ``"stretch"`` (emcee's default) or ``"de+laplace"`` (``"de"`` with a share of independence
+        moves from the Laplace approximation, :class:`LaplaceIndependenceMove`: for nearly Gaussian
+        posteriors such as whole records).
     """
 
     n_ensembles: int = 3
@@ -106,9 +108,62 @@ class SamplingResult:
         return self.chain.reshape(-1, self.chain.shape[-1])
 
 
-def _moves(name: str):
+#: Share of the independence move in ``"de+laplace"``; the rest is ``"de"`` in its own proportions.
+INDEPENDENCE_SHARE = 0.75
+#: Degrees of freedom of the independence proposal's multivariate t (heavy tails: a posterior wider than
+#: its Laplace approximation in some direction is still proposed there, if rarely).
+INDEPENDENCE_DOF = 5.0
+#: Scale of the independence proposal relative to the Laplace covariance (wider than the target, so that
+#: the importance ratio target/proposal stays bounded in the bulk).
+INDEPENDENCE_INFLATION = 1.15
+
+
+class LaplaceIndependenceMove:
+    """Independence Metropolis-Hastings move: every walker proposes a fresh draw from a multivariate t
+    centred at the posterior optimum with the Laplace covariance (times ``INDEPENDENCE_INFLATION``²),
+    whatever its current position, and accepts it with the ratio π(x') g(x) / (π(x) g(x')).
+
+    The proposal is fixed before sampling (not adapted from the chain), so every move keeps the posterior
+    invariant and the chain stays exact whether or not the approximation is good. Where the posterior is
+    close to Gaussian (a whole record that determines every parameter) most proposals are accepted and
+    consecutive samples are nearly independent: τ of a few steps instead of tens. Where it is not (a ridge,
+    a bound, two modes) the proposals are mostly rejected and the differential-evolution share does the
+    work, at the cost of the share's evaluations.
+    """
+
+    def __init__(self, centre: np.ndarray, cov: np.ndarray, dof: float = INDEPENDENCE_DOF,
+                 inflation: float = INDEPENDENCE_INFLATION):
+        self.centre = np.asarray(centre, dtype=float)
+        self.chol = np.linalg.cholesky(np.asarray(cov, dtype=float)) * inflation
+        self.dof = float(dof)
+        self._inv = np.linalg.inv(self.chol)
+
+    def log_density(self, x: np.ndarray) -> np.ndarray:
+        """Log density of the proposal at the rows of ``x``, up to a constant."""
+        z = (np.atleast_2d(x) - self.centre) @ self._inv.T
+        return -0.5 * (self.dof + self.centre.size) * np.log1p(np.sum(z * z, axis=1) / self.dof)
+
+    def draw(self, n: int, random) -> np.ndarray:
+        """``n`` draws (``random``: a ``numpy.random.RandomState``, the ensemble's own)."""
+        z = random.standard_normal((n, self.centre.size))
+        w = random.chisquare(self.dof, n) / self.dof
+        return self.centre + (z / np.sqrt(w)[:, None]) @ self.chol.T
+
+    def proposal(self, coords: np.ndarray, random) -> tuple[np.ndarray, np.ndarray]:
+        """emcee ``MHMove`` proposal: new positions and ln g(x) − ln g(x')."""
+        q = self.draw(coords.shape[0], random)
+        return q, self.log_density(coords) - self.log_density(q)
+
+
+def _moves(name: str, independence: LaplaceIndependenceMove | None = None):
     import emcee  # here, not at module level: the CLI reads SamplerSettings' defaults without emcee/arviz
 
+    if name == "de+laplace":
+        de = _moves("de")
+        if independence is None:  # no positive-definite Laplace covariance: plain DE
+            return de
+        keep = 1.0 - INDEPENDENCE_SHARE
+        return [(m, w * keep) for m, w in de] + [(emcee.moves.MHMove(independence.proposal), INDEPENDENCE_SHARE)]
     if name == "stretch":
         return None
     if name == "de":
@@ -191,7 +246,8 @@ def _tau(chain: np.ndarray) -> np.ndarray:
 
 def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, settings: SamplerSettings | None = None, seed: int = 0,
-                     progress: Callable[[str], None] | None = None) -> SamplingResult:
+                     progress: Callable[[str], None] | None = None,
+                     scale: np.ndarray | None = None) -> SamplingResult:
     """Sample one posterior with ``settings.n_ensembles`` independent emcee ensembles.
 
     Parameters
@@ -207,6 +263,11 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         Seeds every ensemble's generator (through ``numpy.random.SeedSequence``).
     progress : callable, optional
         Receives a one-line status after every convergence check.
+    scale : ndarray, shape (ndim, ndim), optional
+        Covariance of the posterior near ``start`` known to the caller (a Gauss-Newton covariance, say):
+        shapes the starting balls and the ``"de+laplace"`` proposal. Default: :func:`laplace_covariance`
+        (finite differences of ``log_prob``; with strongly correlated parameters its marginal widths can be
+        off by a factor of two, harmless for a starting ball but not for a proposal).
     """
     import emcee
 
@@ -216,15 +277,22 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     start = np.asarray(start, dtype=float)
     ndim = start.size
     seeds = np.random.SeedSequence(seed).spawn(settings.n_ensembles)
-    scale = laplace_covariance(log_prob, start, lower, upper)
+    if scale is not None:
+        try:
+            np.linalg.cholesky(scale)
+        except np.linalg.LinAlgError:
+            scale = None
+    if scale is None:
+        scale = laplace_covariance(log_prob, start, lower, upper)
+    indep = LaplaceIndependenceMove(start, scale) if scale is not None and settings.move == "de+laplace" else None
     samplers, states = [], []
     for ss in seeds:
         rng = np.random.default_rng(ss)
         if hasattr(log_prob, "batch"):  # one compiled call per ensemble step for all walkers
-            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=_moves(settings.move),
+            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=_moves(settings.move, indep),
                                       vectorize=True)
         else:
-            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=_moves(settings.move))
+            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=_moves(settings.move, indep))
         # emcee copies NumPy's global state at construction; give each ensemble its own instead.
         s.random_state = np.random.RandomState(rng.integers(2**32 - 1)).get_state()
         p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)

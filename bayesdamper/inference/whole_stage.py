@@ -42,6 +42,15 @@ START_P_R = (3e4, 1e5, 3e5, 1e6)
 #: coefficients (away from reversals, where compressibility dominates the force).
 QUASI_STATIC_SPEED = 0.3
 MODE = "whole-record"
+#: Sampler move of whole records: differential evolution plus independence moves from the Laplace
+#: approximation (:class:`~bayesdamper.inference.sampling.LaplaceIndependenceMove`). A record that
+#: determines every parameter has a nearly Gaussian posterior, so the independence share cuts τ several
+#: fold (benchmarks/whole_record.py); the chain stays exact when the approximation is poor.
+WHOLE_MOVE = "de+laplace"
+#: Steps between convergence checks of whole records: with the independence moves τ is a few steps, so
+#: 100 steps are already some 25 τ; checking every 200 (the transients' value, τ of tens of steps) would
+#: run up to twice as long as the rules need.
+WHOLE_CHECK_EVERY = 100
 #: Kernel rtol of the least-squares fit and of the Gauss-Newton covariance (the absolute tolerance scaled
 #: alike). The adaptive solver's force moves by about its tolerance when a parameter change shifts its
 #: steps; finite differences need that far below their step, or the fit stops near its start on the
@@ -151,6 +160,23 @@ def gauss_newton_covariance(logpost: WholeLogPosterior, x: np.ndarray) -> np.nda
     return sigma2 * np.linalg.pinv(js.T @ js) * np.outer(s, s)
 
 
+def proposal_covariance(logpost: WholeLogPosterior, x: np.ndarray, phi: float | None) -> np.ndarray | None:
+    """Covariance of the posterior near the least-squares point ``x`` (transformed variables), for the
+    sampler's starting balls and independence proposal: the Gauss-Newton covariance inflated by
+    (1 + φ)/(1 − φ) for lag-1 correlated residuals, and for φ itself (AR(1) noise) its large-sample variance
+    (1 − φ²)/n. None if it is not positive definite (the sampler then uses finite differences)."""
+    phi_ = 0.0 if phi is None else float(phi)
+    cov = gauss_newton_covariance(logpost, x) * (1 + phi_) / (1 - phi_)
+    if phi is not None:
+        n = logpost.problem.force.size
+        cov = np.block([[cov, np.zeros((x.size, 1))], [np.zeros((1, x.size)), np.array([[(1 - phi_**2) / n]])]])
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError:
+        return None
+    return cov
+
+
 def identify_record(window, damper: DamperConstants, settings: StageTwoSettings, seed: int,
                     out_nc: Path | None = None, provenance: dict | None = None, progress=None, *,
                     effects: tuple[str, ...] = (), offset: bool = False) -> WholeResult:
@@ -168,14 +194,18 @@ def identify_record(window, damper: DamperConstants, settings: StageTwoSettings,
     flow4, off0 = quasi_static_start(problem, offset)
     x, j_ls = point_fit(logpost, off0, flow4)
     start = list(x)
+    phi0 = None
     if wspace.has_phi:
         r = logpost.residual(np.r_[x, 0.0])
-        start.append(float(np.clip(r[1:] @ r[:-1] / (r @ r), space.lower[-1] + 0.01, space.upper[-1] - 0.01)))
+        phi0 = float(np.clip(r[1:] @ r[:-1] / (r @ r), space.lower[-1] + 0.01, space.upper[-1] - 0.01))
+        start.append(phi0)
     start = space.clip_inside(np.array(start), margin=1e-4)
+    cov = proposal_covariance(logpost, x, phi0)
     seed_t = task_seed(seed, window.id)
     s = settings.sampler
-    sampler = SamplerSettings(**{**s.as_dict(), "n_walkers": max(s.n_walkers, 2 * space.ndim + 2)})
-    res = sample_posterior(logpost, start, space.lower, space.upper, sampler, seed_t, progress)
+    sampler = SamplerSettings(**{**s.as_dict(), "n_walkers": max(s.n_walkers, 2 * space.ndim + 2),
+                                 "move": WHOLE_MOVE, "check_every": min(s.check_every, WHOLE_CHECK_EVERY)})
+    res = sample_posterior(logpost, start, space.lower, space.upper, sampler, seed_t, progress, scale=cov)
     flat = res.flat()
     phys = space.to_physical(flat)
     med_t = np.median(flat, axis=0)
@@ -193,7 +223,7 @@ def identify_record(window, damper: DamperConstants, settings: StageTwoSettings,
         "converged": bool(res.converged), "convergence": res.reason,
         "tau": {n: float(t) for n, t in zip(space.names, res.tau, strict=True)},
         "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
-        "n_walkers": sampler.n_walkers,
+        "n_walkers": sampler.n_walkers, "move": sampler.move,
         "posterior_mean": {n: float(m) for n, m in zip(space.names, phys.mean(0), strict=True)},
         "posterior_sd": {n: float(v) for n, v in zip(space.names, phys.std(0), strict=True)},
         "prior_box": {n: [float(a), float(b)] for n, a, b in
