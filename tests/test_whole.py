@@ -110,6 +110,20 @@ def test_identify_whole_records_through_the_cli(tmp_path, capsys):
     # resumed, not re-sampled
     assert main(["identify", str(folder), "--out", str(out), "--max-steps", "40", "--workers", "1"]) == 0
     assert "resumed 2 finished record(s)" in capsys.readouterr().err
+    # the report of a whole-record run: its own sections, every record's posterior row and loop figure
+    from test_report import parse
+
+    from bayesdamper.report.html import render_report
+
+    text, page = parse(render_report(summary, None, out))
+    assert "whole record" in text and "Static characteristic (stage 1" not in text
+    assert {"sine", "multisine"} <= set(page.cells)
+    for e in summary["records"]:  # every parameter's median [interval] of every record is in the table
+        for name in ("C_L12", "C_Q21", "alpha_V"):
+            assert f"{e[name]['median']:#.4g} [{e[name]['lo']:#.4g}, {e[name]['hi']:#.4g}]" in page.cells, name
+    assert any(c.startswith("CL,12") for c in page.cells)
+    assert sorted(page.images) == sorted(p for e in summary["records"] for p in summary["figures"][e["id"]]
+                                         if p.endswith(".png"))
 
 
 def _write(folder, name, t, y, f):

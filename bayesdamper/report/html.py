@@ -303,8 +303,11 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
     if diagnosis.get("report_text"):
         out.append(f"<pre>{_e(diagnosis['report_text'])}</pre>")
     base, final = diagnosis.get("baseline") or {}, diagnosis.get("final") or {}
+    whole = diagnosis.get("mode") == "whole-record"
+    unit = "record" if whole else "transient"
     out.append(_table(["", "value"], [
-        ["plateau noise sd [N]", _num(diagnosis.get("noise_N"), ".3g")],
+        ["noise sd (rests or first differences) [N]" if whole else "plateau noise sd [N]",
+         _num(diagnosis.get("noise_N"), ".3g")],
         ["pooled J, eq. (7) baseline", _num(base.get("J_pooled"), ".4f")],
         ["pooled J, final model", _num(final.get("J_pooled"), ".4f")],
         ["selected effects", _e(", ".join(map(str, diagnosis.get("selected") or []))) or "none"]]))
@@ -324,8 +327,8 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
     jb, jf = base.get("J") or {}, final.get("J") or {}
     jf = jf if isinstance(jf, Mapping) else {}
     if isinstance(jb, Mapping) and jb:
-        out.append("<p>Eq. (9) J per transient before and after the selected effects:</p>")
-        out.append(_table(["transient", "J baseline", "J final"],
+        out.append(f"<p>Eq. (9) J per {unit} before and after the selected effects:</p>")
+        out.append(_table([unit, "J baseline", "J final"],
                           ([_e(k), _num(v, ".4f"), _num(jf.get(k), ".4f")] for k, v in jb.items())))
     if diagnosis.get("drift_before") or diagnosis.get("drift_after"):
         out.append("<p>Drift with speed before the diagnosis:</p>"
@@ -417,20 +420,35 @@ def render_report(summary: dict, diagnosis: dict | None, out_dir: Path, *,
     nav = "".join(f'<a href="#{a}">{t}</a>' for a, t in (
         ("data", "Data"), ("static", "Static"), ("posterior", "Posterior"), ("transients", "Fig. 8"),
         ("drift", "Fig. 9"), ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
+    whole = summary.get("mode") == "whole-record"
+    if whole:
+        from bayesdamper.report.whole_html import whole_body, whole_diagnosis_extra, whole_overview
+
+        nav = "".join(f'<a href="#{a}">{t}</a>' for a, t in (
+            ("data", "Data"), ("posterior", "Posterior"), ("transients", "Loops"), ("drift", "Drift"),
+            ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
+        sections = [whole_overview(summary, diagnosis), whole_body(summary, out_dir),
+                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note).replace(
+                        "6. Diagnosis", "5. Diagnosis")
+                    + (whole_diagnosis_extra(diagnosis, mass) if diagnosis else ""),
+                    _provenance_section(summary, out_dir).replace("7. Provenance", "6. Provenance")]
+    else:
+        sections = [_overview(summary, diagnosis), _data_section(summary), _static_section(summary, out_dir),
+                    _posterior_section(summary), _figures_section(summary, out_dir),
+                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note),
+                    _provenance_section(summary, out_dir)]
+    method = ("the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6); records that are "
+              "not triangular tests are identified as whole records, every parameter at once, with Bayesian "
+              "posteriors." if whole else
+              "the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6), identified in two "
+              "stages, with Bayesian posteriors instead of single points.")
     body = "".join([
         f"<h1>Damper identification: data set {_e(repr(name))}</h1>",
         f'<p class="note">Written by bayesdamper {_e(__version__)} on {_e(stamp)}. Method: B. Titurus, '
-        "<i>Complete semi-analytical damper model identification using triangular displacement inputs</i>: "
-        "the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6), identified in two "
-        "stages, with Bayesian posteriors instead of single points.</p>",
+        f"<i>Complete semi-analytical damper model identification using triangular displacement inputs</i>: "
+        f"{method}</p>",
         f"<nav>{nav}</nav>",
-        _overview(summary, diagnosis),
-        _data_section(summary),
-        _static_section(summary, out_dir),
-        _posterior_section(summary),
-        _figures_section(summary, out_dir),
-        _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note),
-        _provenance_section(summary, out_dir),
+        *sections,
     ])
     page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">'

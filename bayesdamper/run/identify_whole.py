@@ -20,7 +20,7 @@ from bayesdamper.run.outfolder import (
     read_finished,
 )
 from bayesdamper.run.progress import count_files
-from bayesdamper.run.stages import drift_summary, run_tasks
+from bayesdamper.run.stages import data_table, drift_summary, run_tasks
 
 
 def load_finished_record(path: Path, window, fingerprint: str) -> WholeResult | None:
@@ -75,7 +75,7 @@ def identify_whole_job(job, settings, *, seed: int, credible_mass: float, worker
     entries = [r.entry for r in results]
     summary = {
         "dataset": ds.name, "mode": MODE, "mode_reason": plan.mode_reason, "credible_mass": credible_mass,
-        "records": entries, "segments": entries, "plan": plan.as_dict(),
+        "records": entries, "segments": entries, "plan": plan.as_dict(), "data": data_table(ds, []),
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "provenance": prov,
         "n_converged": int(sum(e["converged"] for e in entries)),
