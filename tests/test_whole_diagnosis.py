@@ -142,16 +142,25 @@ def test_whole_record_loop_confusion(tmp_path, case, capsys):
 
 @pytest.mark.slow
 def test_lab_mr_loop(tmp_path, capsys):
-    """lab-MR (real passive MR damper, field off): the loop's stated expectations.
+    """lab-MR (real passive MR damper, field off): the main job (identify, diagnose, report) and the loop's
+    stated expectations.
 
     The load cell reads 85-104 N with the piston at rest (at the start of the stroke) before every test, so a
     force offset must be found, of the sign and order of that rest reading: within a factor 2, since the
     offset acts about mid-stroke, where a gas spring or preload may differ from its value at the start;
     friction must be found (the data's authors model these 0 V records with Dahl friction, and an MR
     damper's seals and residual yield stress give a dry force at 0 V); the final model must at least halve
-    the pooled J of eq. (7), and lower J on every record.
+    the pooled J of eq. (7), and lower J on every record. The report shows every record's posterior, its
+    loops, and the added effects' parameters per record.
+
+    The sampling is bounded (100 steps): on these records the eq. (7) posterior does not converge within the
+    default 6000 steps either (α_V and p_R are not determined by 1 Hz sines of this damper: they span the
+    prior box; the AR(1) noise model takes the smooth model error for noise colour, φ ≈ 0.9), which the
+    report must say per record.
     """
-    from bayesdamper.run.diagnose import run_diagnosis
+    from test_report import parse
+
+    from bayesdamper.run.report import run_report
 
     data = tmp_path / "lab-MR"
     shutil.copytree(ROOT / "data" / "lab-MR", data)
@@ -161,13 +170,27 @@ def test_lab_mr_loop(tmp_path, capsys):
         still = np.abs(r.displacement - r.displacement[0]) < 1e-6
         n = int(np.argmin(still)) if not still.all() else r.time.size
         rest.append(float(np.mean(r.force[:n])))
-    d = run_diagnosis(str(data), str(tmp_path / "out"), workers=2, figures=True, quiet=True)
+    out = tmp_path / "out"
+    (page_path,) = run_report(str(data), str(out), workers=2, max_steps=100)
+    d = json.loads((out / "diagnosis.json").read_text())
+    summary = json.loads((out / "summary.json").read_text())
     with capsys.disabled():
         print("\n" + d["report_text"])
+        for e in summary["records"]:
+            print(f"{e['id']}: J {e['J']:.4f}, converged {e['converged']}, R-hat {e['rhat_max']:.4f}, "
+                  f"ESS {e['ess_bulk_min']:.0f}, {e['n_steps']} steps, {e['wall_s']:.0f} s")
     assert {"offset", "friction"} <= set(d["selected"])
     off = d["selected_params"]["offset"]["per_record"]
     for rid, f_rest in zip(d["records"], rest, strict=True):
         assert 0.5 * f_rest < off[rid]["offset_N"]["median"] < 2.0 * f_rest, (rid, off[rid], f_rest)
     assert d["final"]["J_pooled"] <= 0.5 * d["baseline"]["J_pooled"]
     assert all(d["final"]["J"][r] < d["baseline"]["J"][r] for r in d["records"])
-    assert all((tmp_path / "out" / p).is_file() for ps in d["figures"].values() for p in ps)
+    assert all((out / p).is_file() for ps in d["figures"].values() for p in ps)
+    text, page = parse(page_path)
+    assert "whole record" in text and "Added: <b>offset</b>" in text and "Added: <b>friction</b>" in text
+    assert set(d["records"]) <= set(page.cells)
+    assert all((out / src).is_file() for src in page.images)
+    loops = {p for ps in summary["figures"].values() for p in ps if p.endswith(".png")}
+    assert loops <= set(page.images)
+    for e in summary["records"]:  # a record that did not converge is marked so, with the reason
+        assert e["converged"] or e["convergence"] in text
