@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from bayesdamper.report.html import _drift_table, _e, _figures, _interval, _num, _table, _yes
+from bayesdamper.report.html_parts import _drift_table, _e, _figures, _interval, _num, _table, _yes
 
 #: Parameters of a whole-record posterior, in table order: (key, label, display scale).
 WHOLE_PARAMS = (("C_L12", "C<sub>L,12</sub> [kg m<sup>-4</sup> s<sup>-1</sup>]", 1.0),
