@@ -19,6 +19,7 @@ from bayesdamper._version import __version__
 from bayesdamper.io.outputs import atomic_write_bytes
 from bayesdamper.report.html_parts import (
     _PARAMS,
+    _damper_table,
     _drift_table,
     _e,
     _figures,
@@ -95,12 +96,7 @@ def _data_section(summary: Mapping) -> str:
     if not data:
         return out[0] + '<p class="note">This summary has no data-set table (an older version wrote it).</p>'
     d = data.get("damper", {})
-    out.append("<p>The damper's known constants (from <code>damper.toml</code>):</p>")
-    out.append(_table(["constant", "value"], [
-        ["piston area A<sub>P</sub> [m<sup>2</sup>]", _num(d.get("piston_area"))],
-        ["chamber volume V<sub>0,1</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_1"))],
-        ["chamber volume V<sub>0,2</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_2"))],
-        ["liquid bulk modulus B<sub>0</sub> [Pa]", _num(d.get("liquid_bulk_modulus"))]]))
+    out.append(_damper_table(d))
     out.append("<p>Test records (one CSV file each):</p>")
     out.append(_table(["file", "samples", "sample rate [Hz]", "duration [s]", "SHA-256 (first 12)"],
                       ([_e(r["file"]), _num(r["n_samples"], "d"), _num(r["sample_rate_Hz"], ".1f"),

@@ -91,6 +91,16 @@ def _figures(out_dir: Path, paths: Iterable[str] | None, caption: str, missing: 
     return "".join(out)
 
 
+def _damper_table(d: Mapping) -> str:
+    """The damper's known constants (``DamperConstants`` as a dict), with a sentence saying where from."""
+    return ("<p>The damper's known constants (from <code>damper.toml</code>):</p>"
+            + _table(["constant", "value"], [
+                ["piston area A<sub>P</sub> [m<sup>2</sup>]", _num(d.get("piston_area"))],
+                ["chamber volume V<sub>0,1</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_1"))],
+                ["chamber volume V<sub>0,2</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_2"))],
+                ["liquid bulk modulus B<sub>0</sub> [Pa]", _num(d.get("liquid_bulk_modulus"))]]))
+
+
 def _drift_table(drift: Mapping | None, mass: float) -> str:
     if not drift:
         return '<p class="note">No drift fit (it needs at least three transients at two or more speeds).</p>'

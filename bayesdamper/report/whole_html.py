@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 
-from bayesdamper.report.html_parts import _drift_table, _e, _figures, _interval, _num, _table, _yes
+from bayesdamper.report.html_parts import _damper_table, _drift_table, _e, _figures, _interval, _num, _table, _yes
 
 #: Parameters of a whole-record posterior, in table order: (key, label, display scale).
 WHOLE_PARAMS = (("C_L12", "C<sub>L,12</sub> [kg m<sup>-4</sup> s<sup>-1</sup>]", 1.0),
@@ -46,12 +46,7 @@ def _data(summary: Mapping) -> str:
     out = ['<h2 id="data">1. Data set and what was done with each record</h2>']
     d = data.get("damper") or {}
     if d:
-        out.append("<p>The damper's known constants (from <code>damper.toml</code>):</p>")
-        out.append(_table(["constant", "value"], [
-            ["piston area A<sub>P</sub> [m<sup>2</sup>]", _num(d.get("piston_area"))],
-            ["chamber volume V<sub>0,1</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_1"))],
-            ["chamber volume V<sub>0,2</sub> [m<sup>3</sup>]", _num(d.get("chamber_volume_2"))],
-            ["liquid bulk modulus B<sub>0</sub> [Pa]", _num(d.get("liquid_bulk_modulus"))]]))
+        out.append(_damper_table(d))
     files = {r.get("name"): r for r in data.get("records") or []}
     rows = []
     for k, w in zip(plan.get("records") or [], plan.get("windows") or [], strict=False):
