@@ -31,7 +31,7 @@ Measured (2 cores):
     move "de" (differential evolution + stretch): 2.1 ms per evaluation, point fit 0.3 s, identify_record
     140 s on free cores (2200 steps, 105600 evaluations, R-hat 1.002, ESS 2835; truth inside every 90 %
     interval)
-    move "de+laplace" (half the proposals independence proposals from the Gauss-Newton approximation,
+    move "de+laplace" (3/4 of the proposals independence proposals from the Gauss-Newton approximation,
     checks every 100 steps): identify_record 38-39 s (700 steps, 33600 evaluations, τ 4 instead of 38, R-hat
     1.001, ESS 8439; the same intervals to the third digit, truth inside every one); the whole command
     ``bayesdamper identify DIR --mode whole-record --no-figures`` 50.5 s (start-up, posterior file and
