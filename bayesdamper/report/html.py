@@ -200,8 +200,9 @@ def _figures_section(summary: Mapping, out_dir: Path) -> str:
                        "Figure 9 was not drawn (the run used --no-figures)."))
 
 
-def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, note: str | None) -> str:
-    head = '<h2 id="diagnosis">6. Diagnosis of unmodelled effects</h2>'
+def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, note: str | None,
+                       number: int = 6) -> str:
+    head = f'<h2 id="diagnosis">{number}. Diagnosis of unmodelled effects</h2>'
     if not diagnosis:
         return head + ('<p class="note">No diagnosis is available for this run'
                        + (f": {_e(note)}" if note else "") + ". The diagnosis fits candidate effects "
@@ -251,9 +252,9 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
     return "".join(out)
 
 
-def _provenance_section(summary: Mapping, out_dir: Path) -> str:
+def _provenance_section(summary: Mapping, out_dir: Path, number: int = 7) -> str:
     prov = summary.get("provenance") or {}
-    out = ['<h2 id="provenance">7. Provenance</h2>',
+    out = [f'<h2 id="provenance">{number}. Provenance</h2>',
            "<p>Everything needed to reproduce these numbers: the same input files (by SHA-256), the same "
            "settings and seed, and the same package versions. Each transient's posterior, with the same "
            f'provenance, is in <code>{_e("posteriors/<id>.nc")}</code> (NetCDF, ArviZ layout).</p>']
@@ -337,10 +338,9 @@ def render_report(summary: dict, diagnosis: dict | None, out_dir: Path, *,
             ("data", "Data"), ("posterior", "Posterior"), ("transients", "Loops"), ("drift", "Drift"),
             ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
         sections = [whole_overview(summary, diagnosis), whole_body(summary, out_dir),
-                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note).replace(
-                        "6. Diagnosis", "5. Diagnosis")
+                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note, number=5)
                     + (whole_diagnosis_extra(diagnosis, mass) if diagnosis else ""),
-                    _provenance_section(summary, out_dir).replace("7. Provenance", "6. Provenance")]
+                    _provenance_section(summary, out_dir, number=6)]
     else:
         sections = [_overview(summary, diagnosis), _data_section(summary), _static_section(summary, out_dir),
                     _posterior_section(summary), _figures_section(summary, out_dir),

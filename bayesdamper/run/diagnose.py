@@ -36,11 +36,17 @@ from bayesdamper.diagnosis.residual import (
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
-from bayesdamper.io.outputs import atomic_write_json, versions
+from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effect_vector import pack_effects
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import AugmentedProblem
-from bayesdamper.run.outfolder import POSTERIORS_DIR, _load_finished, fingerprint_basis, settings_fingerprint
+from bayesdamper.run.outfolder import (
+    POSTERIORS_DIR,
+    _load_finished,
+    close_diagnosis,
+    fingerprint_basis,
+    settings_fingerprint,
+)
 from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import drift_summary, identify_all
 
@@ -200,10 +206,5 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
             diagnosis["figures"] = write_diagnosis_figures(out_dir, transients, base, final, base_resid,
                                                            final_resid, diagnosis)
             ph.done = count_files(diagnosis["figures"])
-    diagnosis["report_text"] = report_text(diagnosis)
-    diagnosis["wall_time_s"] = time.perf_counter() - t0
-    atomic_write_json(out_dir / "diagnosis.json", diagnosis)
-    if not quiet:
-        print(diagnosis["report_text"])
-        print(f"diagnosis written to {out_dir / 'diagnosis.json'}; wall time {diagnosis['wall_time_s']:.1f} s")
+    close_diagnosis(out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - t0, quiet)
     return diagnosis

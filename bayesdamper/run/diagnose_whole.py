@@ -31,8 +31,9 @@ from bayesdamper.diagnosis.whole_loop import (
     select_model,
     static_findings,
 )
-from bayesdamper.io.outputs import atomic_write_json, versions
+from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.run.outfolder import close_diagnosis
 from bayesdamper.run.progress import Progress, count_files
 
 #: Shortest run of samples at rest (|v| below 1 % of its peak) from which the force noise is measured.
@@ -189,10 +190,5 @@ def run_whole_diagnosis(plan, out: str, *, seed: int = 0, effects: list[str] | N
         with progress.phase("diagnose: figures", unit="file") as ph:
             diagnosis["figures"] = write_whole_diagnosis_figures(out_dir, windows, base, final, spec.label())
             ph.done = count_files(diagnosis["figures"])
-    diagnosis["report_text"] = report_text(diagnosis)
-    diagnosis["wall_time_s"] = time.perf_counter() - t0
-    atomic_write_json(out_dir / "diagnosis.json", diagnosis)
-    if not quiet:
-        print(diagnosis["report_text"])
-        print(f"diagnosis written to {out_dir / 'diagnosis.json'}; wall time {diagnosis['wall_time_s']:.1f} s")
+    close_diagnosis(out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - t0, quiet)
     return diagnosis

@@ -22,12 +22,10 @@ from bayesdamper.core.errors import SettingsError
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
-from bayesdamper.io.outputs import atomic_write_json
 from bayesdamper.run.outfolder import (
-    RUN_FILE,
-    SUMMARY_FILE,
     _load_finished,
     check_output_folder,
+    close_run,
     fingerprint_basis,
     open_run,
     settings_fingerprint,
@@ -190,16 +188,8 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
             summary["figures"] = write_identify_figures(out_dir, ds, job.segs, job.static, results, summary,
                                                         workers=workers)
             ph.done = count_files(summary["figures"])
-    wall = time.perf_counter() - t0
-    summary["wall_time_s"] = wall
-    atomic_write_json(out_dir / SUMMARY_FILE, summary)
-    run.update(status="complete", finished_utc=_now(), resumed=resumed,
-               computed=[job.transients[i].id for i in todo], wall_time_s=wall)
-    atomic_write_json(out_dir / RUN_FILE, run)
-    n_ok = summary["n_converged"]
-    print(f"identified {len(entries)} transient(s) of {ds.name!r}: {n_ok} converged, "
-          f"{len(entries) - n_ok} not" + (f" ({len(resumed)} resumed)" if resumed else "")
-          + f"; results in {out_dir}; wall time {wall:.1f} s")
+    close_run(out_dir, summary, run, wall=time.perf_counter() - t0, finished_utc=_now(), resumed=resumed,
+              computed=[job.transients[i].id for i in todo], units="transient(s)")
     return summary
 
 

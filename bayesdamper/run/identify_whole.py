@@ -12,13 +12,7 @@ import time
 from pathlib import Path
 
 from bayesdamper.inference.whole_stage import MODE, WholeResult, identify_record
-from bayesdamper.io.outputs import atomic_write_json
-from bayesdamper.run.outfolder import (
-    RUN_FILE,
-    SUMMARY_FILE,
-    open_run,
-    read_finished,
-)
+from bayesdamper.run.outfolder import close_run, open_run, read_finished
 from bayesdamper.run.progress import count_files
 from bayesdamper.run.stages import data_table, drift_summary, run_tasks
 
@@ -86,14 +80,6 @@ def identify_whole_job(job, settings, *, seed: int, credible_mass: float, worker
         with progress.phase(f"figures ({ds.name})", unit="file") as ph:
             summary["figures"] = write_whole_figures(out_dir, results, credible_mass)
             ph.done = count_files(summary["figures"])
-    wall = time.perf_counter() - t0
-    summary["wall_time_s"] = wall
-    atomic_write_json(out_dir / SUMMARY_FILE, summary)
-    run.update(status="complete", finished_utc=now(), resumed=resumed,
-               computed=[plan.windows[i].id for i in todo], wall_time_s=wall)
-    atomic_write_json(out_dir / RUN_FILE, run)
-    n_ok = summary["n_converged"]
-    print(f"identified {len(entries)} record(s) of {ds.name!r} as whole records: {n_ok} converged, "
-          f"{len(entries) - n_ok} not" + (f" ({len(resumed)} resumed)" if resumed else "")
-          + f"; results in {out_dir}; wall time {wall:.1f} s")
+    close_run(out_dir, summary, run, wall=time.perf_counter() - t0, finished_utc=now(), resumed=resumed,
+              computed=[plan.windows[i].id for i in todo], units="whole record(s)")
     return summary

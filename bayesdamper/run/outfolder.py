@@ -23,6 +23,7 @@ from bayesdamper.report.html import REPORT_FILE
 #: Files and folders an ``identify`` run owns inside its output folder (``--force`` clears them).
 RUN_FILE = "run.json"
 SUMMARY_FILE = "summary.json"
+DIAGNOSIS_FILE = "diagnosis.json"
 POSTERIORS_DIR = "posteriors"
 OWNED = (POSTERIORS_DIR, FIGURES_DIR, SUMMARY_FILE, RUN_FILE, REPORT_FILE)
 #: Name of a temporary file of the atomic writers (``outputs.atomic_write_bytes``,
@@ -159,6 +160,34 @@ def open_run(job, settings, *, seed: int, workers: int, force: bool, progress, s
            "versions": prov["versions"], "workers": workers, **run_extra}
     atomic_write_json(out_dir / RUN_FILE, run)
     return post_dir, prov, run
+
+
+def close_run(out_dir: Path, summary: dict, run: dict, *, wall: float, finished_utc: str, resumed: list,
+              computed: list, units: str) -> None:
+    """Write a finished job's ``summary.json``, then its ``run.json`` (status "complete"), and say so in one
+    line (``units``: what was identified, e.g. "transient(s)")."""
+    from bayesdamper.io.outputs import atomic_write_json
+
+    summary["wall_time_s"] = wall
+    atomic_write_json(out_dir / SUMMARY_FILE, summary)
+    run.update(status="complete", finished_utc=finished_utc, resumed=resumed, computed=computed, wall_time_s=wall)
+    atomic_write_json(out_dir / RUN_FILE, run)
+    n, n_ok = len(summary["segments"]), summary["n_converged"]
+    print(f"identified {n} {units} of {summary['dataset']!r}: {n_ok} converged, {n - n_ok} not"
+          + (f" ({len(resumed)} resumed)" if resumed else "") + f"; results in {out_dir}; wall time {wall:.1f} s")
+
+
+def close_diagnosis(out_dir: Path, diagnosis: dict, text: str, wall: float, quiet: bool) -> None:
+    """Add the report text and wall time to a finished diagnosis, write ``diagnosis.json`` (atomically, last)
+    and, unless ``quiet``, print the text and where it went."""
+    from bayesdamper.io.outputs import atomic_write_json
+
+    diagnosis["report_text"] = text
+    diagnosis["wall_time_s"] = wall
+    atomic_write_json(out_dir / DIAGNOSIS_FILE, diagnosis)
+    if not quiet:
+        print(text)
+        print(f"diagnosis written to {out_dir / DIAGNOSIS_FILE}; wall time {wall:.1f} s")
 
 
 def read_finished(path: Path, unit_id: str, fingerprint: str) -> dict | None:
