@@ -146,8 +146,14 @@ def build_parser() -> argparse.ArgumentParser:
         i.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="Dask scheduler address (tcp://host:8786): run the transients on that cluster "
                             "(default: local worker processes)")
-        i.add_argument("--noise-model", default="ar1", choices=["ar1", "white"],
-                       help="noise model of the eq. (9) likelihood (default: %(default)s)")
+        i.add_argument("--noise-model", default="plateau", choices=["plateau", "ar1", "white"],
+                       help="noise model of the eq. (9) likelihood: plateau = AR(1) with its coefficient and "
+                            "scale estimated from the plateaus and held fixed (whole records, which have no "
+                            "plateaus: ar1); ar1 = AR(1) of the residual, coefficient sampled; white "
+                            "(default: %(default)s)")
+        i.add_argument("--conditional", action="store_true",
+                       help="condition stage 2 on the stage-1 flow coefficients and the mean step force, as "
+                            "the paper does, instead of sampling them with alpha_V and p_R (default: sample)")
         i.add_argument("--alpha-v-prior", type=_floats, default=None, metavar="LOW,HIGH",
                        help="log-uniform prior bounds of alpha_V [-] (default: {:g},{:g})".format(*ALPHA_V_BOUNDS))
         i.add_argument("--p-r-prior", type=_floats, default=None, metavar="LOW,HIGH",
@@ -218,6 +224,7 @@ def main(argv: list[str] | None = None) -> int:
             run = run_identify if args.command == "identify" else run_report
             run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
                 tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
+                propagate=not args.conditional,
                 alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
                 max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
                 force=args.force, scheduler=args.scheduler, mode=args.mode)

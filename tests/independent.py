@@ -39,11 +39,13 @@ __all__ = [
     "TriangleInput",
     "ar1_noise",
     "bulk_modulus",
+    "force_noise",
     "make_record",
     "multisine_input",
     "orifice_flow",
     "quasi_static_dp",
     "simulate",
+    "simulate_two_state",
     "sine_input",
     "triangle_input",
     "white_noise",
@@ -428,6 +430,54 @@ def simulate(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: float, *, 
     return force
 
 
+def simulate_two_state(inp, t_samples, damper: dict, flow, alpha_v: float, p_charge: float, *,
+                       rtol: float = 1e-10, atol: float = 1e-3) -> np.ndarray:
+    """Damper force of the two-state model eq. (1) at the sample times (scipy Radau), from rest.
+
+    States: absolute chamber pressures p_1, p_2 [Pa], both ``p_charge`` at rest (no accumulator);
+    dp_1/dt = B(p_1)/V_1 (A_P v - Q), dp_2/dt = B(p_2)/V_2 (-A_P v + Q) with Q = eq. (8) of p_1 - p_2 and
+    B of eq. (3) with p_0 -> ``p_charge`` (α_V is the liquid-gas ratio at the charge pressure). Unlike
+    eq. (7), the unloaded chamber's pressure falls below the charge as the loaded one rises, so eq. (6)'s
+    p_R is only an approximation of this model: data from it are misspecified for eq. (7).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Force A_P (p_1 - p_2) [N].
+    """
+    t_samples = np.asarray(t_samples, dtype=float)
+    t0, t1 = float(t_samples[0]), float(t_samples[-1])
+    area, v01, v02, b0 = (float(damper[k]) for k in ("area", "v01", "v02", "b0"))
+    flow = tuple(float(c) for c in flow)
+    edges = np.concatenate(([t0], inp.breakpoints(t0, t1), [t1]))
+    edges = edges[np.concatenate(([True], np.diff(edges) > 1e-12 * np.maximum(1.0, np.abs(edges[1:]))))]
+    edges[-1] = max(edges[-1], t1)
+
+    def b_of(p):
+        return b0 * (1.0 + alpha_v) / (alpha_v + b0 * p_charge / (p * p))
+
+    out = np.empty((t_samples.size, 2))
+    out[t_samples <= t0] = p_charge
+    x = np.array([p_charge, p_charge])
+    for ta, tb in zip(edges[:-1], edges[1:], strict=True):
+        ya, va = float(inp.displacement(ta)), float(inp.velocity(0.5 * (ta + tb)))
+
+        def rhs(t, p, ya=ya, va=va, ta=ta):
+            y = ya + va * (t - ta)
+            q = orifice_flow(p[0] - p[1], flow)
+            r = area * va - q
+            return [b_of(p[0]) / (v01 - area * y) * r, -b_of(p[1]) / (v02 + area * y) * r]
+
+        sol = solve_ivp(rhs, (ta, tb), x, method="Radau", rtol=rtol, atol=atol, dense_output=True)
+        if sol.status != 0:
+            raise RuntimeError(f"Radau solve of eq. (1) failed on [{ta!r}, {tb!r}] s: {sol.message}")
+        sel = (t_samples > ta) & (t_samples <= tb)
+        if np.any(sel):
+            out[sel] = sol.sol(t_samples[sel]).T
+        x = sol.y[:, -1]
+    return area * (out[:, 0] - out[:, 1])
+
+
 # ----------------------------------------------------------------------------- noise and records
 def white_noise(n: int, sd: float, seed) -> np.ndarray:
     """Gaussian white noise: ``n`` samples of standard deviation ``sd`` (``np.random.default_rng(seed)``)."""
@@ -446,6 +496,11 @@ def ar1_noise(n: int, sd: float, phi: float, seed) -> np.ndarray:
     if n:
         innovations[0] = sd * w[0]
     return lfilter([1.0], [1.0, -phi], innovations)
+
+
+def force_noise(n: int, sd: float, phi: float, seed) -> np.ndarray:
+    """White noise (``phi`` = 0) or stationary AR(1) noise of marginal sd ``sd`` [N]."""
+    return ar1_noise(n, sd, phi, seed) if phi else white_noise(n, sd, seed)
 
 
 def make_record(inp, duration: float, rate: float, damper: dict, flow, alpha_v: float, p_r: float, *,

@@ -65,7 +65,8 @@ def test_recovery_on_synthetic_eq7(velocity):
     """Truth inside the 99 % intervals of every transient, all converged (AR(1) default noise model).
 
     Six intervals per case (3 transients x 2 parameters): at 99 % each, a calibrated posterior misses
-    at least one about 6 % of the time; calibration at 90 % itself is tested in test_coverage.py.
+    at least one about 6 % of the time; calibration at 90 % itself is tested in
+    test_transient_coverage.py (independent data, SBC).
     """
     settings = StageTwoSettings(credible_mass=0.99)
     for tr in synthetic_transients(velocity, seed=11):

@@ -38,9 +38,17 @@ from bayesdamper.inference.priors import PHI_BOUNDS, ParameterSpace, ParameterSp
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.physics.single_state import solve_single_state
 
-#: Names of the noise models accepted by :func:`make_noise_model` and the CLI.
-NOISE_MODELS = ("ar1", "white")
+#: Names of the noise models accepted by :func:`make_noise_model` and the CLI. ``"plateau"`` (the default of
+#: triangular tests): AR(1) with φ and σ_e estimated from the plateaus and held fixed
+#: (:mod:`bayesdamper.inference.joint`); where there are no plateaus (whole records, models with effects) it
+#: falls back to ``"ar1"`` (φ sampled, scale marginalised), see :func:`conditional_noise_name`.
+NOISE_MODELS = ("plateau", "ar1", "white")
 DEFAULT_NOISE_MODEL = "ar1"
+
+
+def conditional_noise_name(name: str) -> str:
+    """The noise model of a likelihood that has no plateau estimate to hold fixed: ``"plateau"`` -> ``"ar1"``."""
+    return "ar1" if name == "plateau" else name
 
 
 def cost_j(computed: np.ndarray, measured: np.ndarray) -> float:
@@ -148,7 +156,7 @@ def make_noise_model(name: str) -> WhiteNoise | AR1Noise:
 
     if name == "white":
         return WhiteNoise()
-    if name == "ar1":
+    if name in ("ar1", "plateau"):  # "plateau" without plateaus: the AR(1) of the residual itself
         return AR1Noise()
     raise SettingsError(f"--noise-model: unknown noise model {name!r}, choose from {', '.join(NOISE_MODELS)}")
 

@@ -93,7 +93,10 @@ class StageTwoSettings:
     """Everything that changes a stage-2 result (stored with it; compared on resume)."""
 
     credible_mass: float = 0.9
-    noise_model: str = "ar1"
+    noise_model: str = "plateau"
+    #: Sample the step's Δp and the flow coefficients with α_V and p_R (:mod:`~bayesdamper.inference.joint`);
+    #: False: condition on their estimates (the paper's stage 2, kept for comparison).
+    propagate: bool = True
     alpha_v_bounds: tuple[float, float] = ALPHA_V_BOUNDS
     p_r_bounds: tuple[float, float] = P_R_BOUNDS
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
@@ -160,14 +163,20 @@ def shape_report(samples: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> d
 def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficients,
                        settings: StageTwoSettings, seed: int, out_nc: Path | None = None,
                        provenance: dict | None = None, progress=None,
-                       static_draws: np.ndarray | None = None, problem=None) -> TransientResult:
+                       static_draws: np.ndarray | None = None, problem=None, prior=None) -> TransientResult:
     """Point fit and posterior of one transient.
 
+    With ``prior`` (a :class:`~bayesdamper.inference.joint.StageOnePrior`) and ``settings.propagate``, the
+    posterior is the joint one of :mod:`bayesdamper.inference.joint` (Δp at the step and the flow coefficients
+    sampled with α_V and p_R). Otherwise it is conditional on ``flow`` and the step's Δp.
+
     ``problem`` replaces the default eq. (7) :class:`TransientProblem` (e.g. a model with effects; it
-    needs ``simulate_force(alpha_v, p_r)``, ``force``, ``time`` and ``dp0``).
+    needs ``simulate_force(alpha_v, p_r)``, ``force``, ``time`` and ``dp0``); such a posterior is conditional.
 
     If ``out_nc`` is given, the posterior is written there (atomically) with its provenance.
     """
+    if problem is None and prior is not None and settings.propagate:
+        return _identify_joint(transient, damper, flow, settings, seed, out_nc, provenance, progress, prior)
     t0 = time.perf_counter()
     problem = problem if problem is not None else TransientProblem.from_transient(transient, damper, flow)
     space = settings.space()
@@ -236,3 +245,95 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
         post.write_netcdf(idata, out_nc)
     return TransientResult(entry, space.names, phys_ch, np.array(problem.time), np.array(problem.force),
                            band, ls_force)
+
+
+#: Sampler of the joint posterior: differential evolution with independence moves from the Gauss-Newton
+#: approximation at the MAP (as whole records; the 7-parameter posterior of a transient that determines α_V
+#: and p_R is close to Gaussian in the sampled variables), walkers 2 × ndim + 2, checks every 100 steps.
+JOINT_MOVE = "de+laplace"
+JOINT_CHECK_EVERY = 100
+
+
+def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
+                    prior) -> TransientResult:
+    from dataclasses import replace
+
+    from bayesdamper.inference import joint
+
+    t0 = time.perf_counter()
+    code = {"plateau": joint.PLATEAU, "ar1": joint.AR1, "white": joint.WHITE}[settings.noise_model]
+    jp = joint.JointProblem.from_transient(transient, damper, prior, code)
+    space = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
+    logpost = joint.JointLogPosterior(jp, space)
+    # the paper's point estimate (Nelder-Mead on α_V, p_R with stage-1 flow and the mean step force): reported
+    # as "ls" and the start of the MAP fit
+    cond = TransientProblem.from_transient(transient, damper, flow)
+    pf = fit_point(cond, ParameterSpace.default((), settings.alpha_v_bounds, settings.p_r_bounds))
+    start = [np.log(pf.alpha_v), np.log(pf.p_r), jp.dp0_estimate, *prior.mean]
+    if code == joint.AR1:
+        start.append(float(np.clip(prior.noise.phi, space.lower[-1] + 0.01, space.upper[-1] - 0.01)))
+    x_map, cov = joint.fit_map(logpost, np.array(start))
+    x_map = space.clip_inside(x_map, margin=1e-3)
+    sampler = replace(settings.sampler, move=JOINT_MOVE, check_every=JOINT_CHECK_EVERY,
+                      n_walkers=max(settings.sampler.n_walkers, 2 * space.ndim + 2))
+    seed_t = task_seed(seed, transient.id)
+    res = sample_posterior(logpost, x_map, space.lower, space.upper, sampler, seed_t, progress, scale=cov)
+    flat = res.flat()
+    phys = space.to_physical(flat)
+    rng = np.random.default_rng(seed_t)
+    idx = rng.choice(len(flat), size=min(N_PREDICTIVE, len(flat)), replace=False)
+    sims = [f for f, good in (jp.simulate_window(th) for th in flat[idx]) if good]
+    q = [0.5 - settings.credible_mass / 2, 0.5, 0.5 + settings.credible_mass / 2]
+    band = np.quantile(np.array(sims), q, axis=0) if sims else np.full((3, jp.time.size), np.nan)
+    f_map, ok_map = jp.simulate_window(x_map)
+    ls_force, _ = cond.simulate_force(pf.alpha_v, pf.p_r)
+    entry = {
+        "id": transient.id, "test": transient.test, "kind": transient.kind,
+        "direction": int(transient.direction), "velocity_m_s": float(transient.velocity),
+        "t_start_s": float(transient.t_step),
+        "alpha_V": summarise(phys[:, 0], settings.credible_mass),
+        "p_R_Pa": summarise(phys[:, 1], settings.credible_mass),
+        "dp0_Pa": summarise(phys[:, 2], settings.credible_mass),
+        "flow": {n: summarise(phys[:, 3 + k], settings.credible_mass) for k, n in enumerate(joint.FLOW_NAMES)},
+        "ls": {"alpha_V": pf.alpha_v, "p_R_Pa": pf.p_r, "J": pf.cost},
+        # J of the posterior-predictive median force (the curve drawn through the data) and at the MAP
+        "J": cost_j(band[1], jp.force) if sims else float("inf"),
+        "J_map": cost_j(f_map, jp.force) if ok_map else float("inf"),
+        "rhat_max": float(np.max(res.rhat)), "ess_bulk_min": float(np.min(res.ess_bulk)),
+        "converged": bool(res.converged), "convergence": res.reason,
+        "tau": {n: float(t) for n, t in zip(space.names, res.tau, strict=True)},
+        "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
+        "posterior_mean": {n: float(m) for n, m in zip(space.names, phys.mean(0), strict=True)},
+        "posterior_sd": {n: float(s) for n, s in zip(space.names, phys.std(0), strict=True)},
+        "shape": shape_report(flat, space.lower, space.upper),
+        "seed": seed_t, "propagated": True, "noise": prior.noise.as_dict() | {"model": settings.noise_model},
+        "dp0_estimate_Pa": jp.dp0_estimate, "n_pre_samples": int(jp.pre_force.size),
+        # σ_w / σ_e at the MAP: how much wider than the noise alone the window's scale (noise + model error)
+        # makes the intervals
+        "window_scale_ratio": logpost.window_scale(x_map, prior.noise.phi) / prior.noise.sigma_e,
+        "sampler": sampler.as_dict(),
+    }
+    if code == joint.AR1:
+        entry["phi"] = summarise(phys[:, -1], settings.credible_mass)
+    tau_min = float(np.min(res.tau))
+    thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
+    ch = res.chain[:, ::thin]
+    e, t, w, d = ch.shape
+    phys_ch = space.to_physical(ch.transpose(0, 2, 1, 3).reshape(e * w, t, d))
+    lp = res.log_prob[:, ::thin].transpose(0, 2, 1).reshape(e * w, t)
+    entry["wall_s"] = time.perf_counter() - t0
+    if out_nc is not None:
+        attrs = dict(provenance or {})
+        attrs.update({"segment_id": transient.id, "seed": seed_t, "run_seed": seed,
+                      "settings": settings.as_dict(), "static_flow": asdict(flow),
+                      "stage1_prior": {"mean": prior.mean.tolist(), "cov": prior.cov.tolist(),
+                                       "dof": prior.dof.tolist()},
+                      "summary": {k: entry[k] for k in ("alpha_V", "p_R_Pa", "J", "rhat_max",
+                                                          "ess_bulk_min", "converged", "tau")},
+                      "entry": entry, "thin": thin, "chains_are": "walkers, ensemble-major "
+                      f"({sampler.n_ensembles} ensembles x {sampler.n_walkers} walkers)"})
+        idata = post.to_inference_data(phys_ch, space.names, lp, {"force_N": jp.force},
+                                       {"time_s": jp.time, "dp0_Pa": np.array([jp.dp0_estimate]),
+                                        "band_N": band, "ls_force_N": ls_force}, attrs)
+        post.write_netcdf(idata, out_nc)
+    return TransientResult(entry, space.names, phys_ch, np.array(jp.time), np.array(jp.force), band, ls_force)

@@ -275,6 +275,7 @@ def segment_record(
 
     steps: list[VelocityStep] = []
     step_knots: list[int] = []  # knot index of each step
+    pre_samples: list[tuple[np.ndarray, np.ndarray]] = []  # (times, forces) the step force is the mean of
     for k, (s1, s2) in enumerate(zip(segments[:-1], segments[1:], strict=True)):
         if s2.state == 0 or s1.state == s2.state:
             continue
@@ -289,6 +290,7 @@ def segment_record(
         if not before.any():
             before = t < tk
         f_step = float(force[before].mean())
+        pre_samples.append((t[before], force[before]))
         steps.append(
             VelocityStep(
                 index=len(steps),
@@ -308,7 +310,7 @@ def segment_record(
 
     transients = []
     eps = 1e-9 * float(t[1] - t[0])
-    for step, kk in zip(steps, step_knots, strict=True):
+    for step, kk, (pre_t, pre_f) in zip(steps, step_knots, pre_samples, strict=True):
         t_end = step.time + tmax
         if t_end > t[-1] + eps:
             raise DataError(
@@ -338,6 +340,8 @@ def segment_record(
                 dp0=step.force / area,
                 knot_times=_readonly([step.time, t_end]),
                 knot_displacements=_readonly([knot_y[kk], float(seg.at(t_end))]),
+                pre_time=_readonly(pre_t),
+                pre_force=_readonly(pre_f),
             )
         )
 

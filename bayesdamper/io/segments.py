@@ -5,7 +5,7 @@ Immutable containers with read-only arrays; :mod:`bayesdamper.io.segmentation` b
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -83,6 +83,9 @@ class Transient:
         the first is ``t_step``, the last ``t_step + tmax``. Read-only.
     knot_displacements : ndarray, shape (n_knots,)
         Fitted displacement at the knots [m]. Read-only.
+    pre_time, pre_force : ndarray, shape (n_pre,)
+        The samples of the last ``STEP_FORCE_WINDOW`` before the step (those ``dp0`` is the mean of):
+        times [s] and measured force [N]. Read-only; empty if not given.
     """
 
     id: str
@@ -98,6 +101,8 @@ class Transient:
     dp0: float
     knot_times: np.ndarray
     knot_displacements: np.ndarray
+    pre_time: np.ndarray = field(default_factory=lambda: _readonly([]))
+    pre_force: np.ndarray = field(default_factory=lambda: _readonly([]))
 
     @property
     def duration(self) -> float:

@@ -69,7 +69,13 @@ def _overview(summary: Mapping, diagnosis: Mapping | None) -> str:
     lines = [f"<li>{n} transient(s) identified; <b>{n_ok}</b> converged by every criterion, "
              f"{n - n_ok} not (see the posterior table).</li>"]
     su = summary.get("static_uncertainty") or {}
-    if su:
+    if su.get("propagated"):
+        nz = summary.get("noise") or {}
+        lines.append("<li>Every posterior includes the uncertainty of the stage-1 flow coefficients and of the "
+                     "pressure difference at the step (both sampled with α<sub>V</sub> and p<sub>R</sub>); "
+                     f"noise estimated from the plateaus: AR(1) φ = {_num(nz.get('phi'), '.3f')}, "
+                     f"σ = {_num(nz.get('sigma_N'), '.1f')} N.</li>")
+    elif su:
         ratio = su.get("max_ratio") or {}
         lines.append("<li>Uncertainty of the stage-1 flow coefficients: "
                      + ("negligible for every transient" if su.get("negligible") else
@@ -136,13 +142,16 @@ def _static_section(summary: Mapping, out_dir: Path) -> str:
 
 def _posterior_section(summary: Mapping) -> str:
     mass = float(summary.get("credible_mass", 0.9))
-    sampler = (summary.get("settings") or {}).get("sampler") or {}
     segs = summary.get("segments", [])
+    # joint posteriors record the sampler they ran (more walkers for more parameters)
+    sampler = (segs[0].get("sampler") if segs and segs[0].get("sampler") else
+               (summary.get("settings") or {}).get("sampler") or {})
     has_phi = any("phi" in e for e in segs)
+    has_ratio = any("window_scale_ratio" in e for e in segs)
     header = ["transient", "kind", "dir", "v [mm/s]", f"α<sub>V</sub> median [{mass:.0%}]",
               f"p<sub>R</sub> [kPa] median [{mass:.0%}]"] + (["φ median"] if has_phi else []) + [
-              "J eq. (9)", "NM α<sub>V</sub>", "NM p<sub>R</sub> [kPa]", "R-hat max", "ESS min", "τ max",
-              "converged", "shape"]
+              "J eq. (9)", "NM J", "NM α<sub>V</sub>", "NM p<sub>R</sub> [kPa]"] + (
+              ["σ<sub>w</sub>/σ"] if has_ratio else []) + ["R-hat max", "ESS min", "τ max", "converged", "shape"]
     rows, classes = [], []
     for e in segs:
         tau = max((t for t in (e.get("tau") or {}).values() if isinstance(t, int | float)), default=None)
@@ -154,31 +163,49 @@ def _posterior_section(summary: Mapping) -> str:
                _interval(e.get("p_R_Pa"), "#.4g", 1e-3)]
         if has_phi:
             row.append(_num((e.get("phi") or {}).get("median"), ".3f"))
-        row += [_num(e.get("J"), ".4f"), _num(ls.get("alpha_V"), ".4g"), _num(ls.get("p_R_Pa"), ".4g", 1e-3),
-                _num(e.get("rhat_max"), ".3f"), _num(e.get("ess_bulk_min"), ".0f"), _num(tau, ".1f"),
+        row += [_num(e.get("J"), ".4f"), _num(ls.get("J"), ".4f"), _num(ls.get("alpha_V"), ".4g"),
+                _num(ls.get("p_R_Pa"), ".4g", 1e-3)]
+        if has_ratio:
+            row.append(_num(e.get("window_scale_ratio"), ".1f"))
+        row += [_num(e.get("rhat_max"), ".3f"), _num(e.get("ess_bulk_min"), ".0f"), _num(tau, ".1f"),
                 _yes(e.get("converged")) + ("" if e.get("converged") else
                                             f'<br><span class="note">{_e(e.get("convergence", ""))}</span>'),
                 _e(", ".join(flags).replace("_", " ")) or "–"]
         rows.append(row)
         classes.append("" if e.get("converged") else "bad")
     su = summary.get("static_uncertainty") or {}
+    if su.get("propagated"):
+        what = ("<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled together with "
+                "the pressure difference at the step (the samples before the step are in the likelihood) and the "
+                "four flow coefficients (under stage 1's posterior as prior), so their uncertainty is in every "
+                "interval. The noise is AR(1) with φ from the plateaus, held fixed; in the window its scale "
+                "σ<sub>w</sub> is estimated, so where the model misses the data (σ<sub>w</sub>/σ well above 1, "
+                "σ the plateau noise) the intervals widen by that factor: they then promise to hold the value "
+                "the eq. (9) optimum would take on noise-free data of the same test, not a true α<sub>V</sub> of "
+                "a model that does not hold. J is eq. (9) of the posterior-predictive median force; NM is the "
+                "paper's Nelder–Mead point estimate with the stage-1 coefficients and the mean step force. "
+                "Sampled with emcee ")
+        tail = ""
+    else:
+        what = "<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled with emcee "
+        tail = (f'<p class="note">Stage-1 uncertainty: {_e(su.get("method", ""))}; median ratio α<sub>V</sub> '
+                f"{_num((su.get('median_ratio') or {}).get('alpha_V'), '.2f')}, p<sub>R</sub> "
+                f"{_num((su.get('median_ratio') or {}).get('p_R_Pa'), '.2f')}.</p>" if su else "")
     return ('<h2 id="posterior">3. Posterior of every transient (stage 2)</h2>'
-            "<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled with emcee "
+            + what +
             f"({_e(sampler.get('n_ensembles', '?'))} independently started ensembles of "
             f"{_e(sampler.get('n_walkers', '?'))} walkers, at most {_e(sampler.get('max_steps', '?'))} steps "
             f"each) under the {_e((summary.get('settings') or {}).get('noise_model', '?'))} noise model; "
             f"the table gives the posterior median and the equal-tailed {mass:.0%} credible interval. "
-            "J is eq. (9) at the posterior median; NM is the paper's Nelder–Mead point estimate. "
-            f"<b>Converged</b> means: the chain is longer than {_num(sampler.get('tau_factor'), 'g')} "
+            + ("" if su.get("propagated") else
+               "J is eq. (9) at the posterior median; NM is the paper's Nelder–Mead point estimate. ")
+            + f"<b>Converged</b> means: the chain is longer than {_num(sampler.get('tau_factor'), 'g')} "
             "integrated autocorrelation times τ (in steps) and τ has settled, the rank-normalised R-hat "
             f"across ensembles is ≤ {_num(sampler.get('rhat_max'), 'g')} and the bulk effective sample size "
             f"(ESS) is ≥ {_num(sampler.get('ess_min'), 'g')}. Rows in red did not converge; their intervals "
             "are not to be trusted. <i>Shape</i> flags a long (log α<sub>V</sub>, log p<sub>R</sub>) ridge, "
             "two modes, or a posterior piled against a prior bound.</p>"
-            + _table(header, rows, left=2, classes=classes)
-            + (f'<p class="note">Stage-1 uncertainty: {_e(su.get("method", ""))}; median ratio α<sub>V</sub> '
-               f"{_num((su.get('median_ratio') or {}).get('alpha_V'), '.2f')}, p<sub>R</sub> "
-               f"{_num((su.get('median_ratio') or {}).get('p_R_Pa'), '.2f')}.</p>" if su else ""))
+            + _table(header, rows, left=2, classes=classes) + tail)
 
 
 

@@ -14,6 +14,13 @@ from pathlib import Path
 
 from bayesdamper.report.html_parts import _damper_table, _drift_table, _e, _figures, _interval, _num, _table, _yes
 
+
+def _noise_name(summary: Mapping) -> str:
+    """The noise model a whole record ran: "plateau" has no plateaus to read here and falls back to "ar1"."""
+    name = (summary.get("settings") or {}).get("noise_model", "?")
+    return "ar1 (φ sampled; a whole record has no plateaus)" if name == "plateau" else name
+
+
 #: Parameters of a whole-record posterior, in table order: (key, label, display scale).
 WHOLE_PARAMS = (("C_L12", "C<sub>L,12</sub> [kg m<sup>-4</sup> s<sup>-1</sup>]", 1.0),
                 ("C_Q12", "C<sub>Q,12</sub> [kg m<sup>-7</sup>]", 1.0),
@@ -89,8 +96,8 @@ def _posterior(summary: Mapping) -> str:
     return ('<h2 id="posterior">2. Posterior of every record</h2>'
             "<p>Flow coefficients uniform on [0, 100× the record's scale], α<sub>V</sub> and p<sub>R</sub> "
             "log-uniform on the stage-2 boxes; likelihood on the eq. (9) residual of the whole (decimated) record "
-            f"under the {_e((summary.get('settings') or {}).get('noise_model', '?'))} noise model with the scale "
-            f"marginalised. emcee with {_e(sampler.get('n_ensembles', '?'))} independently started ensembles "
+            f"under the {_e(_noise_name(summary))} noise model with the scale marginalised. "
+            f"emcee with {_e(sampler.get('n_ensembles', '?'))} independently started ensembles "
             f"(move {_e(move)}: differential evolution plus independence proposals from the Gauss-Newton "
             "approximation at the least-squares optimum, an exact Metropolis-Hastings step). "
             f"<b>Converged</b>: chain longer than {_num(sampler.get('tau_factor'), 'g')} τ with τ settled, "

@@ -61,12 +61,13 @@ def _remote_identify(task: tuple) -> tuple:
     """Run one transient on a worker; return ``(TransientResult, NetCDF bytes or None)``."""
     from bayesdamper.inference.stage2 import identify_transient
 
-    tr, damper, flow, settings, seed, nc, prov, draws = task
+    tr, damper, flow, settings, seed, nc, prov, draws, prior = task
     if nc is None:
-        return identify_transient(tr, damper, flow, settings, seed, None, prov, static_draws=draws), None
+        return identify_transient(tr, damper, flow, settings, seed, None, prov, static_draws=draws,
+                                  prior=prior), None
     with tempfile.TemporaryDirectory(prefix="bayesdamper-") as tmp:
         local = Path(tmp) / Path(nc).name
-        res = identify_transient(tr, damper, flow, settings, seed, local, prov, static_draws=draws)
+        res = identify_transient(tr, damper, flow, settings, seed, local, prov, static_draws=draws, prior=prior)
         return res, local.read_bytes()
 
 

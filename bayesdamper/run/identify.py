@@ -63,7 +63,8 @@ class _Job:
     plan: object = None
 
 
-def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps) -> StageTwoSettings:
+def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps,
+                        propagate: bool = True) -> StageTwoSettings:
     make_noise_model(noise_model)  # validate before any work
     if max_steps is not None and max_steps < 1:
         raise SettingsError(f"--max-steps must be a positive number of steps, got {max_steps}")
@@ -73,7 +74,8 @@ def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, ma
         kw["alpha_v_bounds"] = b
     if (b := _bounds(p_r_prior, "--p-r-prior")) is not None:
         kw["p_r_bounds"] = b
-    settings = StageTwoSettings(credible_mass=credible_mass, noise_model=noise_model, sampler=sampler, **kw)
+    settings = StageTwoSettings(credible_mass=credible_mass, noise_model=noise_model, sampler=sampler,
+                                propagate=propagate, **kw)
     settings.space()
     return settings
 
@@ -149,18 +151,26 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     todo = [i for i, r in enumerate(results) if r is None]
     progress(f"stage 1 done; sampling {len(todo)} transient(s) on "
              + (f"the cluster at {scheduler}" if client is not None else f"{workers} worker(s)"))
+    from bayesdamper.inference.joint import StageOnePrior, plateau_noise
     from bayesdamper.inference.stage2 import N_STATIC_DRAWS, STATIC_NEGLIGIBLE_RATIO
 
-    draws = job.static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
+    prior = None
+    draws = None
+    if settings.propagate:
+        noise = plateau_noise(job.segs)
+        prior = StageOnePrior.from_fit(job.static, noise)
+        progress(f"plateau noise: AR(1) φ {noise.phi:.3f}, σ {noise.sigma:.1f} N "
+                 f"({noise.n_plateaus} plateaus, {noise.n_samples} samples)")
+    else:
+        draws = job.static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
     with progress.phase(f"stage 2 ({ds.name}): sampling", total=len(todo), unit="transient"):
         fresh = identify_all([job.transients[i] for i in todo], ds.damper, job.static.coefficients, settings,
-                             seed, workers, post_dir, prov, progress, draws, client=client)
+                             seed, workers, post_dir, prov, progress, draws, client=client, prior=prior)
         progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged"
                       + (f", {len(resumed)} resumed" if resumed else ""))
     for i, r in zip(todo, fresh, strict=True):
         results[i] = r
     entries = [r.entry for r in results]
-    ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")] for e in entries])
     summary = {
         "dataset": ds.name, "mode": TWO_STAGE, "credible_mass": credible_mass,
         "plan": job.plan.as_dict() if job.plan else None,
@@ -169,7 +179,18 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
         "n_converged": int(sum(e["converged"] for e in entries)),
-        "static_uncertainty": {
+        "data": data_table(ds, job.segs),
+    }
+    if prior is not None:
+        summary["noise"] = prior.noise.as_dict()
+        summary["static_uncertainty"] = {
+            "method": "propagated: the four flow coefficients are sampled in every transient's posterior under "
+                      "the stage-1 posterior (Student-t per direction) as prior, with the step's Δp",
+            "propagated": True}
+    else:
+        ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")]
+                           for e in entries])
+        summary["static_uncertainty"] = {
             "method": f"optimum re-fitted under {N_STATIC_DRAWS} draws of the stage-1 coefficients; ratio = "
                       "sd of the optima / posterior sd (log parameters)",
             "max_ratio": {"alpha_V": float(np.nanmax(ratios[:, 0])),
@@ -178,9 +199,7 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                              "p_R_Pa": float(np.nanmedian(ratios[:, 1]))},
             "threshold": STATIC_NEGLIGIBLE_RATIO,
             "negligible": bool(all(e["static_sensitivity"]["negligible"] for e in entries)),
-        },
-        "data": data_table(ds, job.segs),
-    }
+            "propagated": False}
     if figures:
         from bayesdamper.report.figures import write_identify_figures
 
@@ -194,10 +213,10 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
 
 
 def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: str, *, seed: int = 0,
-                 credible_mass: float = 0.9, tmax: float = 3.0, workers: int = 0, noise_model: str = "ar1",
+                 credible_mass: float = 0.9, tmax: float = 3.0, workers: int = 0, noise_model: str = "plateau",
                  alpha_v_prior=None, p_r_prior=None, max_steps: int | None = None, only: str | None = None,
                  figures: bool = True, force: bool = False,
-                 scheduler: str | None = None, mode: str = "auto") -> dict | list[dict]:
+                 scheduler: str | None = None, mode: str = "auto", propagate: bool = True) -> dict | list[dict]:
     """``bayesdamper identify``: stage 1 and Bayesian stage 2 for every transient; write OUT.
 
     Parameters
@@ -230,7 +249,7 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
     dirs = [data_dir] if single else list(data_dir)
     if not dirs:
         raise SettingsError("no data-set folder given")
-    settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps)
+    settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps, propagate)
     progress = Progress()
     check_mode(mode)
     with progress.phase("load, classify, segment, stage 1", unit="data set") as ph:

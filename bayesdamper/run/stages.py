@@ -45,8 +45,8 @@ def prepare_loaded(ds, tmax: float):
 
 
 def _worker(args) -> TransientResult:
-    tr, damper, flow, settings, seed, nc, prov, draws = args
-    return identify_transient(tr, damper, flow, settings, seed, nc, prov, static_draws=draws)
+    tr, damper, flow, settings, seed, nc, prov, draws, prior = args
+    return identify_transient(tr, damper, flow, settings, seed, nc, prov, static_draws=draws, prior=prior)
 
 
 def _pool(workers: int):
@@ -54,7 +54,7 @@ def _pool(workers: int):
     return ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
 
 
-def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings) -> float:
+def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings, prior=None) -> float:
     """Compile, or load from numba's on-disk cache, the kernels stage 2 calls; return the seconds spent.
 
     One log-posterior evaluation and one forward solve at the centre of the prior box, in this
@@ -67,20 +67,28 @@ def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings) -> floa
     centre = (space.lower + space.upper) / 2
     LogPosterior(problem, make_noise_model(settings.noise_model), space).batch(centre[None, :])
     problem.simulate_force(*space.to_physical(centre[None, :])[0, :2])
+    if prior is not None and settings.propagate:
+        from bayesdamper.inference import joint
+
+        jp = joint.JointProblem.from_transient(transient, damper, prior)
+        js = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
+        joint.JointLogPosterior(jp, js).batch(((js.lower + js.upper) / 2)[None, :])
     return time.perf_counter() - t0
 
 
 def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int, workers: int,
                  posterior_dir: Path | None, provenance: dict, progress: Progress,
-                 static_draws: np.ndarray | None = None, *, client=None) -> list[TransientResult]:
+                 static_draws: np.ndarray | None = None, *, client=None, prior=None) -> list[TransientResult]:
     """Stage 2 for every transient, on ``workers`` processes or a Dask cluster; results in input order.
 
-    ``static_draws`` (rows of [C_L12, C_Q12, C_L21, C_Q21] from stage 1) switch on the check of how
-    much the stage-1 uncertainty moves each transient's optimum. ``client`` (a connected
-    ``dask.distributed.Client``) sends the tasks to its cluster instead of the local pool.
+    ``prior`` (a :class:`~bayesdamper.inference.joint.StageOnePrior`) makes every posterior the joint one
+    (flow coefficients and step Δp sampled). ``static_draws`` (rows of [C_L12, C_Q12, C_L21, C_Q21] from
+    stage 1) switch on, for conditional posteriors, the check of how much the stage-1 uncertainty moves each
+    transient's optimum. ``client`` (a connected ``dask.distributed.Client``) sends the tasks to its cluster
+    instead of the local pool.
     """
     tasks = [(tr, damper, flow, settings, seed,
-              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws)
+              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws, prior)
              for tr in transients]
     def report(i: int, res: TransientResult, done: int) -> None:
         e = res.entry
@@ -98,7 +106,7 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
     if workers > 1 and len(tasks) > 1:
         # Compile (or load) the numba kernels once here: forked workers inherit them, and the on-disk
         # cache exists for spawned ones, instead of every worker compiling the same code at once.
-        progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings):.1f} s")
+        progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings, prior):.1f} s")
     return run_tasks(_worker, tasks, workers, report, before=lambda task: progress(f"sampling {task[0].id} ..."))
 
 
