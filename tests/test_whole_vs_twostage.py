@@ -190,9 +190,12 @@ def _dp0_spread(plan, two: dict) -> dict:
 
 
 def _widening(e: dict, name: str) -> float:
-    """Factor on a stage-2 posterior sd (and interval) for what stage 2 holds fixed, added in quadrature:
-    the stage-1 coefficients (``static_sensitivity``: sd of the optimum under stage-1 draws / posterior sd)
-    and dp0 (:func:`_dp0_spread`, stored in the entry as ``dp0_spread`` by the fixture)."""
+    """Factor on a stage-2 posterior sd (and interval) for what a *conditional* stage 2 holds fixed, added in
+    quadrature: the stage-1 coefficients (``static_sensitivity``: sd of the optimum under stage-1 draws /
+    posterior sd) and dp0 (:func:`_dp0_spread`, stored in the entry as ``dp0_spread`` by the fixture).
+    1 for the joint stage 2 (the default since issue 9), whose posterior samples both."""
+    if e.get("propagated"):
+        return 1.0
     ratio = e["static_sensitivity"]["ratio"][name]
     r_static = ratio if np.isfinite(ratio) else 0.0
     r_dp0 = e["dp0_spread"][name] / e["posterior_sd"][name]
