@@ -109,8 +109,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if len(todo) < len(base):
         progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
     with progress.phase("diagnose: eq. (7) baseline", total=len(todo), unit="transient"):
+        from bayesdamper.inference.joint import StageOnePrior
+        from bayesdamper.inference.plateau_noise import plateau_noise as plateau_ar1
+
+        prior = StageOnePrior.from_fit(static, plateau_ar1(segs)) if todo else None
         fresh = identify_all([transients[i] for i in todo], ds.damper, static.coefficients, settings, seed,
-                             workers, None, prov, progress) if todo else []
+                             workers, None, prov, progress, prior=prior) if todo else []
         for i, r in zip(todo, fresh, strict=True):
             base[i] = r
         progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged, {len(base) - len(todo)} re-used")
