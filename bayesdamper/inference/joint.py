@@ -28,13 +28,13 @@ coverage. Here
 
 What the intervals mean under model error: the misfit of a model that eq. (7) does not contain is the same
 in every repetition of a test; only the noise changes, so an estimate scatters about the *pseudo-true* value,
-the optimum of the same likelihood on noise-free data (White 1982, "Maximum likelihood estimation of
-misspecified models"). The intervals are built with σ_w estimated from the window, which holds noise and
-model error, so they are wider than the noise alone makes them and cover the pseudo-true value at least at
-their nominal rate (tests/test_transient_coverage.py, two-state data). They do not cover "the" α_V of a model
-that does not hold; how much the model misses is reported beside them (J, the residual diagnosis, the
-transient-to-transient spread in the drift table), and σ_w / σ_e per transient says by how much model error
-widened them.
+the maximiser of the expected log-likelihood at the test's noise level (White 1982, "Maximum likelihood
+estimation of misspecified models"): the eq. (9) optimum of the noise-free record weighted by the noise colour,
+with Δp0 pulled by the misfit as far as the samples before the step allow. That is what the intervals hold at
+their nominal rate (tests/test_transient_coverage.py, two-state data), not "the" α_V of a model that does not
+hold. The window's scale σ_w holds noise and model error, so where the misfit is not hidden by the colour the
+intervals widen by σ_w / σ_e (``window_scale_ratio`` per transient). How much the model misses is reported
+beside them (J, the residual diagnosis, the transient-to-transient spread in the drift table).
 """
 
 from __future__ import annotations
