@@ -13,8 +13,23 @@ import numpy as np
 
 from bayesdamper.report.style import _figure, _param_label, _pct
 
-
 # --------------------------------------------------------------------------- posterior diagnostics
+#: Parameters left out of the per-transient diagnostics: the flow coefficients a joint posterior samples under
+#: the stage-1 prior (their intervals are in summary.json); a 7 x 7 corner plot took 40 s of rig-A's figures.
+_NOT_SHOWN = ("CL12", "CQ12", "CL21", "CQ21")
+
+
+def _own_parameters(result):
+    """``result`` restricted to the transient's own parameters (α_V, p_R, Δp at the step, φ)."""
+    keep = [k for k, n in enumerate(result.names) if n not in _NOT_SHOWN]
+    if len(keep) == len(result.names):
+        return result
+    from dataclasses import replace
+
+    return replace(result, names=tuple(result.names[k] for k in keep),
+                   chains=np.asarray(result.chains)[..., keep])
+
+
 def _flat_display(result) -> tuple[np.ndarray, list[str]]:
     chains = np.asarray(result.chains, dtype=float)
     flat = chains.reshape(-1, chains.shape[-1])
@@ -43,6 +58,7 @@ def corner_plot(result, *, bins: int = 20, max_samples: int | None = 20000, cred
     """
     import corner
 
+    result = _own_parameters(result)
     flat, labels = _flat_display(result)
     if max_samples is not None and flat.shape[0] > max_samples:
         flat = flat[:: math.ceil(flat.shape[0] / max_samples)]
@@ -96,6 +112,7 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
     matplotlib.figure.Figure
         2 x ndim axes: column 0 traces, column 1 rank histograms.
     """
+    result = _own_parameters(result)
     chains = np.asarray(result.chains, dtype=float)
     n_chains, n_draws, ndim = chains.shape
     if n_ensembles < 1 or n_chains % n_ensembles:

@@ -220,8 +220,9 @@ def _figures_section(summary: Mapping, out_dir: Path) -> str:
                        "Figure 8 was not drawn (the run used --no-figures).")
             + '<h2 id="drift">5. Drift with piston speed (paper Fig. 9)</h2>'
             "<p>A straight line in piston speed is fitted to the transients' posterior means, with each "
-            "transient's posterior sd and an intrinsic scatter integrated out (converged transients only, "
-            "when there are any). A slope whose credible interval excludes 0 is a real drift.</p>"
+            "transient's posterior sd and an intrinsic scatter integrated out (converged transients not piled "
+            "against a prior bound, when there are any). A slope whose credible interval excludes 0 is a real "
+            "drift.</p>"
             + _drift_table(summary.get("drift"), mass)
             + _figures(out_dir, figs.get("figure9_drift"), "Figure 9: p_R and 100/α_V against piston speed",
                        "Figure 9 was not drawn (the run used --no-figures)."))

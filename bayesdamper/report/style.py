@@ -36,6 +36,7 @@ PARAMETER_LABELS = {
     "alpha_V": ("α_V [-]", 1.0),
     "p_R_Pa": ("p_R [MPa]", PRESSURE_DISPLAY),
     "phi": ("φ, AR(1) [-]", 1.0),
+    "dp0_Pa": ("Δp at the step [kPa]", 1e-3),
 }
 
 
