@@ -33,8 +33,9 @@ estimation of misspecified models"): the eq. (9) optimum of the noise-free recor
 with Δp0 pulled by the misfit as far as the samples before the step allow. That is what the intervals aim at,
 not "the" α_V of a model that does not hold; on two-state data they hold it less often than nominal (13/18
 and 15/18 on the CI seed of tests/test_transient_coverage.py). The window's scale σ_w holds noise and model
-error, so where the misfit is not hidden by the colour the intervals widen by σ_w / σ_e (``window_scale_ratio`` per transient). How much the model misses is reported
-beside them (J, the residual diagnosis, the transient-to-transient spread in the drift table).
+error, so where the misfit is not hidden by the colour the intervals widen by σ_w / σ_e
+(``window_scale_ratio`` per transient). How much the model misses is reported beside them (J, the residual
+diagnosis, the transient-to-transient spread in the drift table).
 """
 
 from __future__ import annotations
