@@ -44,3 +44,21 @@ def test_intrinsic_scatter_widens_the_interval():
 def test_needs_three_points_at_two_speeds():
     with pytest.raises(ValueError):
         fit_drift(np.array([1e-3, 1e-3, 1e-3]), np.ones(3), np.ones(3))
+
+
+def test_drift_summary_leaves_out_posteriors_at_a_prior_bound_when_enough_remain():
+    """A posterior piled against a prior bound has a mean set by the box: left out of the trend, unless that
+    leaves fewer than three transients at two speeds (then the converged ones are used, as before)."""
+    from bayesdamper.run.stages import drift_summary
+
+    def entry(v, at_bound):
+        mean = 1e9 if at_bound else 40.0 + 1e4 * v  # an at-bound mean far off the trend
+        return {"velocity_m_s": v, "converged": True, "shape": {"at_prior_bound": at_bound}, "direction": 1,
+                "posterior_mean": {"alpha_V": mean, "p_R_Pa": 3e5}, "posterior_sd": {"alpha_V": 1.0, "p_R_Pa": 1e4}}
+
+    four = [entry(1.0e-3, False), entry(1.2e-3, False), entry(1.4e-3, True), entry(1.5e-3, False)]
+    d = drift_summary(four, 0.9, 0)["alpha_V"]
+    assert d["n_transients"] == 3
+    assert abs(d["slope_per_m_s"]["median"] - 1e4) < 0.05 * 1e4
+    two_left = [entry(1.0e-3, False), entry(1.2e-3, True), entry(1.4e-3, True), entry(1.5e-3, False)]
+    assert drift_summary(two_left, 0.9, 0)["alpha_V"]["n_transients"] == 4

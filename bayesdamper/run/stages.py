@@ -141,8 +141,10 @@ def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
     out = {}
     # converged posteriors that the data determine: one piled against a prior bound (rig-A's slow reversals, whose
     # α_V-p_R ridge runs into the 10 MPa bound) has a mean set by the prior box, not by the test
-    ok = ([e for e in entries if e["converged"] and not (e.get("shape") or {}).get("at_prior_bound")]
-          or [e for e in entries if e["converged"]] or entries)
+    # (each choice only if it leaves the three transients at two speeds a trend needs)
+    choices = ([e for e in entries if e["converged"] and not (e.get("shape") or {}).get("at_prior_bound")],
+               [e for e in entries if e["converged"]], entries)
+    ok = next(c for c in choices if len(c) >= 3 and len({e["velocity_m_s"] for e in c}) >= 2 or c is entries)
     for name in ("alpha_V", "p_R_Pa"):
         v = np.array([e["velocity_m_s"] for e in ok])
         m = np.array([e["posterior_mean"][name] for e in ok])
