@@ -30,7 +30,7 @@ import pytest
 from independent import SMALL, SMALL_FLOW, make_record, multisine_input, sine_input, write_dataset
 
 #: Replicates (every input, rate and noise type appear in all combinations of pairs).
-N_REPLICATES = int(os.environ.get("BAYESDAMPER_COVERAGE_N", "20"))
+N_REPLICATES = int(os.environ.get("BAYESDAMPER_COVERAGE_N", "14"))
 NAMES = ("C_L12", "C_Q12", "C_L21", "C_Q21", "alpha_V", "p_R_Pa")
 INPUTS = ("sine 0.5 Hz", "sine 1 Hz", "sine 2 Hz", "multisine")
 RATES = (100.0, 250.0, 500.0)
@@ -38,12 +38,13 @@ DURATION = 5.0  # [s]
 NOISE_SD = 2.0  # [N], about 1 % of the forces
 PHI = 0.8
 #: Pooled coverage band over all parameter-replicate pairs. With 6 x 20 = 120 pairs the binomial sd is
-#: 2.7 % if they were independent; the parameters of one replicate are correlated (C_L and C_Q of a
+#: 2.7 % if they were independent (CI runs 14 replicates since issue 9 added its slow tests: 84 pairs,
+#: 3.3 %); the parameters of one replicate are correlated (C_L and C_Q of a
 #: direction miss together), so about 2.5 sd of an effective 60 pairs below 0.9: 0.80; above, at least
 #: two misses in 120 (0.99). Above the band means inflated intervals, below it overconfident ones.
 POOLED_BAND = (0.80, 0.99)
 #: Smallest share of converged records. Not every record determines every parameter well: a 0.5 Hz sine
-#: sampled at 100 Hz (2 of the 20 default replicates) leaves α_V and p_R on a curved ridge whose τ keeps
+#: sampled at 100 Hz (2 of the first 14 or 20 replicates) leaves α_V and p_R on a curved ridge whose τ keeps
 #: growing past 100 steps, and the rules report "not converged" at the 6000-step budget rather than accept
 #: it. 0.8 allows that cell and two more (a 30-record run had 3 unconverged: that cell and a 1 Hz sine at
 #: 250 Hz with AR(1) noise; the constant was chosen after it, and is said so). The intervals of every record,
