@@ -49,6 +49,7 @@ from numba import njit
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.inference.plateau_noise import PlateauNoise, ar1_from_segments, plateau_noise
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace, ParameterSpec
+from bayesdamper.inference.problem import freeze_window
 from bayesdamper.physics.single_state import solve_single_state
 
 __all__ = ["AR1", "PLATEAU", "WHITE", "JointLogPosterior", "JointProblem", "PlateauNoise", "StageOnePrior",
@@ -223,16 +224,7 @@ class JointProblem:
     atol: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in ("time", "force", "pre_time", "pre_force", "knot_times", "knot_displacements"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64).copy()
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
-        kt = self.knot_times
-        if self.time[-1] > kt[-1] and self.time[-1] - kt[-1] <= 1e-9 * max(1.0, abs(float(kt[-1]))):
-            kt = kt.copy()
-            kt[-1] = self.time[-1]
-            kt.flags.writeable = False
-            object.__setattr__(self, "knot_times", kt)
+        freeze_window(self, ("time", "force", "pre_time", "pre_force", "knot_times", "knot_displacements"))
 
     @classmethod
     def from_transient(cls, transient, damper: DamperConstants, prior: StageOnePrior, noise_code: int = PLATEAU,
@@ -306,6 +298,7 @@ class JointLogPosterior:
         self.space = space
         self._lower, self._upper = space.lower, space.upper
         self._prec = problem.prior.precision_blocks()
+        self._prec_chol = np.linalg.cholesky(self._prec)  # the flow prior's pseudo-residuals in whitened()
         nz = problem.prior.noise
         self._phi, self._inv_var = float(nz.phi), 1.0 / float(nz.sigma_e) ** 2
 
@@ -364,10 +357,8 @@ class JointLogPosterior:
         e = e.copy()
         e[:n_pre] /= self.problem.prior.noise.sigma_e
         e[n_pre:] /= sigma_w
-        prior = []
-        for d in (0, 1):
-            chol = np.linalg.cholesky(self._prec[d])
-            prior.append(chol.T @ (theta[3 + 2 * d:5 + 2 * d] - self.problem.prior.mean[2 * d:2 * d + 2]))
+        prior = [self._prec_chol[d].T @ (theta[3 + 2 * d:5 + 2 * d] - self.problem.prior.mean[2 * d:2 * d + 2])
+                 for d in (0, 1)]
         return np.concatenate([e, *prior])
 
     def window_scale(self, theta: np.ndarray, phi: float) -> float:

@@ -20,6 +20,26 @@ LIKELIHOOD_RTOL = 1e-5
 LIKELIHOOD_ATOL = 1.0  # [Pa]: far below 1 N / A_P force resolution
 
 
+def freeze_window(problem, names: tuple[str, ...]) -> None:
+    """Make a frozen window problem's arrays read-only float64 copies, and check its knots cover its samples.
+
+    A sample at the window end that rounding put a hair (1e-9 relative) past the last knot extends that knot.
+    ``problem`` needs ``segment_id``, ``time`` and ``knot_times`` among ``names``.
+    """
+    for name in names:
+        arr = np.ascontiguousarray(getattr(problem, name), dtype=np.float64).copy()
+        arr.flags.writeable = False
+        object.__setattr__(problem, name, arr)
+    kt, t = problem.knot_times, problem.time
+    if t[-1] > kt[-1] and t[-1] - kt[-1] <= 1e-9 * max(1.0, abs(float(kt[-1]))):
+        kt = kt.copy()
+        kt[-1] = t[-1]
+        kt.flags.writeable = False
+        object.__setattr__(problem, "knot_times", kt)
+    if not (problem.knot_times[0] <= t[0] and t[-1] <= problem.knot_times[-1]):
+        raise ValueError(f"{problem.segment_id}: knots must cover the sample times")
+
+
 @dataclass(frozen=True)
 class TransientProblem:
     """One transient window bound to the damper and its static flow coefficients.
@@ -55,21 +75,8 @@ class TransientProblem:
     atol: float = LIKELIHOOD_ATOL
 
     def __post_init__(self) -> None:
-        for name in ("time", "force", "knot_times", "knot_displacements"):
-            arr = np.ascontiguousarray(getattr(self, name), dtype=np.float64).copy()
-            arr.flags.writeable = False
-            object.__setattr__(self, name, arr)
+        freeze_window(self, ("time", "force", "knot_times", "knot_displacements"))
         object.__setattr__(self, "flow_array", self.flow.as_array())
-        kt = self.knot_times
-        slack = 1e-9 * max(1.0, abs(float(kt[-1])))
-        if self.time[-1] > kt[-1] and self.time[-1] - kt[-1] <= slack:
-            # a sample at the window end that rounding put a hair past the last knot: extend the knot
-            kt = kt.copy()
-            kt[-1] = self.time[-1]
-            kt.flags.writeable = False
-            object.__setattr__(self, "knot_times", kt)
-        if not (self.knot_times[0] <= self.time[0] and self.time[-1] <= self.knot_times[-1]):
-            raise ValueError(f"{self.segment_id}: knots must cover the sample times")
 
     @classmethod
     def from_transient(cls, transient, damper: DamperConstants, flow: FlowCoefficients,

@@ -122,6 +122,37 @@ def summarise(samples: np.ndarray, credible_mass: float) -> dict[str, float]:
     return {"median": float(np.median(samples)), "lo": float(lo), "hi": float(hi)}
 
 
+def sampling_summary(res, names: tuple[str, ...], phys: np.ndarray) -> dict:
+    """The convergence diagnostics and posterior moments every stored entry carries (``res``: a
+    :class:`~bayesdamper.inference.sampling.SamplingResult`; ``phys``: its flat draws in physical units)."""
+    return {
+        "rhat_max": float(np.max(res.rhat)), "ess_bulk_min": float(np.min(res.ess_bulk)),
+        "converged": bool(res.converged), "convergence": res.reason,
+        "tau": {n: float(t) for n, t in zip(names, res.tau, strict=True)},
+        "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
+        "posterior_mean": {n: float(m) for n, m in zip(names, phys.mean(0), strict=True)},
+        "posterior_sd": {n: float(s) for n, s in zip(names, phys.std(0), strict=True)},
+    }
+
+
+def thinned_chains(res, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray, int]:
+    """The stored chains: every walker a chain (ensemble-major), thinned to about ``THIN_PER_TAU`` draws per
+    τ, in physical units, shape (chains, draws, ndim); their log-probabilities (chains, draws); the thinning."""
+    tau_min = float(np.min(res.tau))
+    thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
+    ch = res.chain[:, ::thin]  # (E, T, W, D)
+    e, t, w, d = ch.shape
+    phys_ch = space.to_physical(ch.transpose(0, 2, 1, 3).reshape(e * w, t, d))
+    lp = res.log_prob[:, ::thin].transpose(0, 2, 1).reshape(e * w, t)
+    return phys_ch, lp, thin
+
+
+def predictive_band(sims: list, credible_mass: float, n_times: int) -> np.ndarray:
+    """Lower, median and upper quantile of simulated forces, shape (3, n_times) (NaN if none succeeded)."""
+    q = [0.5 - credible_mass / 2, 0.5, 0.5 + credible_mass / 2]
+    return np.quantile(np.array(sims), q, axis=0) if sims else np.full((3, n_times), np.nan)
+
+
 #: |correlation| of (log α_V, log p_R) above which the posterior is reported as a ridge.
 RIDGE_CORRELATION = 0.9
 #: Ashman's D between the two parts of the best hard split along the principal axis above which the
@@ -204,12 +235,7 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
         "p_R_Pa": summarise(phys[:, 1], settings.credible_mass),
         "ls": {"alpha_V": pf.alpha_v, "p_R_Pa": pf.p_r, "J": pf.cost},
         "J": cost_j(f_med, problem.force) if ok else float("inf"),
-        "rhat_max": float(np.max(res.rhat)), "ess_bulk_min": float(np.min(res.ess_bulk)),
-        "converged": bool(res.converged), "convergence": res.reason,
-        "tau": {n: float(t) for n, t in zip(space.names, res.tau, strict=True)},
-        "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
-        "posterior_mean": {n: float(m) for n, m in zip(space.names, phys.mean(0), strict=True)},
-        "posterior_sd": {n: float(s) for n, s in zip(space.names, phys.std(0), strict=True)},
+        **sampling_summary(res, space.names, phys),
         "shape": shape_report(flat, space.lower, space.upper),
         "seed": seed_t,
     }
@@ -218,17 +244,11 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
     if static_draws is not None:
         entry["static_sensitivity"] = static_sensitivity(
             problem, space, static_draws, (float(med[0]), float(med[1])), np.std(flat[:, :2], axis=0))
-    tau_min = float(np.min(res.tau))
-    thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
-    ch = res.chain[:, ::thin]  # (E, T, W, D)
-    e, t, w, d = ch.shape
-    phys_ch = space.to_physical(ch.transpose(0, 2, 1, 3).reshape(e * w, t, d))
-    lp = res.log_prob[:, ::thin].transpose(0, 2, 1).reshape(e * w, t)
+    phys_ch, lp, thin = thinned_chains(res, space)
     rng = np.random.default_rng(seed_t)
     draws = phys[rng.choice(len(phys), size=min(N_PREDICTIVE, len(phys)), replace=False)]
     sims = [f for f, good in (problem.simulate_force(a, p) for a, p in draws[:, :2]) if good]
-    q = [0.5 - settings.credible_mass / 2, 0.5, 0.5 + settings.credible_mass / 2]
-    band = np.quantile(np.array(sims), q, axis=0) if sims else np.full((3, problem.time.size), np.nan)
+    band = predictive_band(sims, settings.credible_mass, problem.time.size)
     ls_force, _ = problem.simulate_force(pf.alpha_v, pf.p_r)
     entry["wall_s"] = time.perf_counter() - t0
     if out_nc is not None:
@@ -290,8 +310,7 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
     rng = np.random.default_rng(seed_t)
     idx = rng.choice(len(flat), size=min(N_PREDICTIVE, len(flat)), replace=False)
     sims = [f for f, good in (jp.simulate_window(th) for th in flat[idx]) if good]
-    q = [0.5 - settings.credible_mass / 2, 0.5, 0.5 + settings.credible_mass / 2]
-    band = np.quantile(np.array(sims), q, axis=0) if sims else np.full((3, jp.time.size), np.nan)
+    band = predictive_band(sims, settings.credible_mass, jp.time.size)
     f_map, ok_map = jp.simulate_window(x_map)
     ls_force, _ = cond.simulate_force(pf.alpha_v, pf.p_r)
     entry = {
@@ -306,12 +325,7 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
         # J of the posterior-predictive median force (the curve drawn through the data) and at the MAP
         "J": cost_j(band[1], jp.force) if sims else float("inf"),
         "J_map": cost_j(f_map, jp.force) if ok_map else float("inf"),
-        "rhat_max": float(np.max(res.rhat)), "ess_bulk_min": float(np.min(res.ess_bulk)),
-        "converged": bool(res.converged), "convergence": res.reason,
-        "tau": {n: float(t) for n, t in zip(space.names, res.tau, strict=True)},
-        "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
-        "posterior_mean": {n: float(m) for n, m in zip(space.names, phys.mean(0), strict=True)},
-        "posterior_sd": {n: float(s) for n, s in zip(space.names, phys.std(0), strict=True)},
+        **sampling_summary(res, space.names, phys),
         "shape": shape_report(flat, space.lower, space.upper),
         "seed": seed_t, "propagated": True, "noise": prior.noise.as_dict() | {"model": settings.noise_model},
         "dp0_estimate_Pa": jp.dp0_estimate, "n_pre_samples": int(jp.pre_force.size),
@@ -322,12 +336,7 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
     }
     if code == joint.AR1:
         entry["phi"] = summarise(phys[:, -1], settings.credible_mass)
-    tau_min = float(np.min(res.tau))
-    thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
-    ch = res.chain[:, ::thin]
-    e, t, w, d = ch.shape
-    phys_ch = space.to_physical(ch.transpose(0, 2, 1, 3).reshape(e * w, t, d))
-    lp = res.log_prob[:, ::thin].transpose(0, 2, 1).reshape(e * w, t)
+    phys_ch, lp, thin = thinned_chains(res, space)
     entry["wall_s"] = time.perf_counter() - t0
     if out_nc is not None:
         attrs = dict(provenance or {})

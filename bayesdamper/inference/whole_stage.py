@@ -20,11 +20,13 @@ from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
 from bayesdamper.inference.stage2 import (
     N_PREDICTIVE,
-    THIN_PER_TAU,
     StageTwoSettings,
     TransientResult,
+    predictive_band,
+    sampling_summary,
     summarise,
     task_seed,
+    thinned_chains,
 )
 from bayesdamper.inference.whole import (
     STATIC_NAMES,
@@ -219,30 +221,19 @@ def identify_record(window, damper: DamperConstants, settings: StageTwoSettings,
         "J": float(np.sqrt(np.sum((f_med - problem.force) ** 2) / np.sum(problem.force**2))) if ok else math.inf,
         "ls": {**{n: float(v) for n, v in zip(space.names, space.to_physical(np.r_[x, [0.0] * (space.ndim - x.size)]),
                                                 strict=True) if n != "phi"}, "J": float(j_ls)},
-        "rhat_max": float(np.max(res.rhat)), "ess_bulk_min": float(np.min(res.ess_bulk)),
-        "converged": bool(res.converged), "convergence": res.reason,
-        "tau": {n: float(t) for n, t in zip(space.names, res.tau, strict=True)},
-        "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
+        **sampling_summary(res, space.names, phys),
         "n_walkers": sampler.n_walkers, "move": sampler.move,
-        "posterior_mean": {n: float(m) for n, m in zip(space.names, phys.mean(0), strict=True)},
-        "posterior_sd": {n: float(v) for n, v in zip(space.names, phys.std(0), strict=True)},
         "prior_box": {n: [float(a), float(b)] for n, a, b in
                       zip(space.names, space.to_physical(space.lower), space.to_physical(space.upper), strict=True)},
         "seed": seed_t,
     }
     for i, n in enumerate(space.names):
         entry[n] = summarise(phys[:, i], settings.credible_mass)
-    tau_min = float(np.min(res.tau))
-    thin = max(1, int(tau_min / THIN_PER_TAU)) if np.isfinite(tau_min) else 1
-    ch = res.chain[:, ::thin]
-    e, t, w, d = ch.shape
-    phys_ch = space.to_physical(ch.transpose(0, 2, 1, 3).reshape(e * w, t, d))
-    lp = res.log_prob[:, ::thin].transpose(0, 2, 1).reshape(e * w, t)
+    phys_ch, lp, thin = thinned_chains(res, space)
     rng = np.random.default_rng(seed_t)
     draws = flat[rng.choice(len(flat), size=min(N_PREDICTIVE, len(flat)), replace=False)]
     sims = [f for f, good in (logpost.simulate(th) for th in draws) if good]
-    q = [0.5 - settings.credible_mass / 2, 0.5, 0.5 + settings.credible_mass / 2]
-    band = np.quantile(np.array(sims), q, axis=0) if sims else np.full((3, problem.time.size), np.nan)
+    band = predictive_band(sims, settings.credible_mass, problem.time.size)
     ls_force, _ = logpost.simulate(np.r_[x, [0.0] * (space.ndim - x.size)])
     entry["wall_s"] = time.perf_counter() - t0
     if out_nc is not None:
