@@ -154,6 +154,12 @@ def build_parser() -> argparse.ArgumentParser:
         i.add_argument("--conditional", action="store_true",
                        help="condition stage 2 on the stage-1 flow coefficients and the mean step force, as "
                             "the paper does, instead of sampling them with alpha_V and p_R (default: sample)")
+        i.add_argument("--coupling", default="cut", choices=["cut", "joint"],
+                       help="how a transient's window couples to its step force and the stage-1 flow "
+                            "coefficients: cut = they keep the posterior of their own data (samples before the "
+                            "step, plateaus) and their uncertainty moves alpha_V, p_R, but the window's model "
+                            "error cannot drag them; joint = sampled together with alpha_V and p_R "
+                            "(default: %(default)s)")
         i.add_argument("--alpha-v-prior", type=_floats, default=None, metavar="LOW,HIGH",
                        help="log-uniform prior bounds of alpha_V [-] (default: {:g},{:g})".format(*ALPHA_V_BOUNDS))
         i.add_argument("--p-r-prior", type=_floats, default=None, metavar="LOW,HIGH",
@@ -224,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             run = run_identify if args.command == "identify" else run_report
             run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
                 tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
-                propagate=not args.conditional,
+                propagate=not args.conditional, coupling=args.coupling,
                 alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
                 max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
                 force=args.force, scheduler=args.scheduler, mode=args.mode)

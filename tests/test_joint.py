@@ -153,7 +153,13 @@ def test_map_recovers_every_parameter_on_noise_free_data():
     assert x[2] == pytest.approx(tr.pre_force.mean() / DAMPER.piston_area, rel=1e-4)
 
 
-def test_joint_interval_covers_a_start_from_rest_the_conditional_one_misses():
+#: J of the cut's posterior-predictive median over Nelder-Mead's: the median curve of draws spread over Δp0 and
+#: the flow coefficients is not the optimum's curve; 1 % slack is a tenth of issue 9's rule on rig-A (10 %).
+CUT_J_SLACK = 1.01
+
+
+@pytest.mark.parametrize("coupling", ["cut", "joint"])
+def test_propagated_interval_covers_a_start_from_rest_the_conditional_one_misses(coupling):
     """The cause of issue 9 on one start from rest (α_V 90, p_R 30 kPa, white 10 N): conditioned on the mean
     step force the 90 % interval of α_V is a few tenths of a percent wide and misses the truth by many of its
     widths; sampled jointly it holds it. Seed 0 of 1, not chosen: with the conditional posterior's z of 4-50
@@ -164,10 +170,10 @@ def test_joint_interval_covers_a_start_from_rest_the_conditional_one_misses():
     tr = seg.transients[0]
     flow = FlowCoefficients(*PAPER_FLOW)
     cond = identify_transient(tr, DAMPER, flow, StageTwoSettings(noise_model="ar1", propagate=False), 0).entry
-    jnt = identify_transient(tr, DAMPER, flow, StageTwoSettings(), 0, prior=static_like).entry
+    jnt = identify_transient(tr, DAMPER, flow, StageTwoSettings(coupling=coupling), 0, prior=static_like).entry
     assert jnt["converged"] and jnt["propagated"]
     assert jnt["alpha_V"]["lo"] <= 90.0 <= jnt["alpha_V"]["hi"]
     assert jnt["p_R_Pa"]["lo"] <= 3.0e4 <= jnt["p_R_Pa"]["hi"]
     width = cond["alpha_V"]["hi"] - cond["alpha_V"]["lo"]
     assert abs(cond["alpha_V"]["median"] - 90.0) > 2 * width
-    assert jnt["J"] <= 1.001 * jnt["ls"]["J"]
+    assert jnt["J"] <= (CUT_J_SLACK if coupling == "cut" else 1.001) * jnt["ls"]["J"]

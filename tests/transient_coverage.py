@@ -116,63 +116,43 @@ def _pseudo_true_task(args) -> dict:
 
 
 def pseudo_true(inp, t: np.ndarray, clean: np.ndarray, t_step: float, cs: CoverageSet) -> dict:
-    """The pseudo-true (α_V, p_R) of a misspecified record (White 1982): the maximiser of the *expected*
-    log-likelihood over the noise, the value the estimate scatters about from one noise realisation to the next.
+    """The pseudo-true (α_V, p_R) of a misspecified record: the value the cut stage 2's estimate scatters about
+    from one noise realisation to the next (White 1982: the maximiser of the expected log-likelihood).
 
-    For the joint stage 2's likelihood (AR(1) innovations, the samples of the 0.15 s before the step at the noise's
-    innovation sd σ_e, the window's scale marginalised) and Gaussian noise the expectation is, up to constants,
-    −S_pre/(2σ_e²) − (n_w/2) log(S_w + n_w σ_e²) with S_pre, S_w the sums of squared innovations of the
-    noise-free residual; it is maximised over (α_V, p_R, Δp0) with eq. (7) of the independent scipy solver and
-    the exact flow coefficients, by least squares at a fixed window scale σ_w² = S_w/n_w + σ_e² re-set twice.
-    Unlike the noise-free optimum it lets the model error pull Δp0 as far as the pre-step samples allow, as it
-    does in the posterior.
+    Under the cut (bayesdamper/inference/cut.py) Δp0 and the flow coefficients come from their own data, whose
+    noise-free values are the mean force before the step / A_P and the flow coefficients of the data (the plateaus
+    of the two-state model settle to the same orifice law eq. (4)). The window's expected log-likelihood (AR(1)
+    innovations of the plateaus' φ, scale marginalised) is −(n/2) log(S(θ) + n σ_e²) with S the sum of squared
+    innovations of the noise-free residual, so its maximiser is the eq. (9) optimum of the noise-free record
+    weighted by the noise colour (for white noise eq. (9) itself): the issue's definition. Computed with eq. (7) of
+    the independent scipy solver by least squares from two starts.
     """
     from scipy.optimize import least_squares
 
     win = (t >= t_step) & (t <= t_step + TMAX)
     pre = (t >= t_step - 0.15) & (t < t_step)
     area = RIG_A["area"]
-    f_pre, tw, fw = clean[pre], t[win], clean[win]
+    dp0 = float(np.mean(clean[pre])) / area
+    r_last = area * dp0 - clean[pre][-1]  # ≈ 0: the damper is settled before the step
+    tw, fw = t[win], clean[win]
     phi = cs.phi
-    sig_e = cs.sd * math.sqrt(1.0 - phi * phi)
 
     def innovations(x):
-        dp0 = x[2] * 1e3
-        r_pre = area * dp0 - f_pre
-        r_w = simulate(inp, tw, RIG_A, PAPER_FLOW, math.exp(x[0]), math.exp(x[1]), dp0=dp0, t0=t_step,
-                       rtol=PSEUDO_RTOL, atol=1e-3) - fw
-        r = np.r_[r_pre, r_w]
-        e = np.r_[math.sqrt(1 - phi * phi) * r[0], r[1:] - phi * r[:-1]]
-        return e[:r_pre.size], e[r_pre.size:]
-
-    n_rows = int(pre.sum() + win.sum())
-
-    def weighted(x, sig_w):
         try:
-            e_pre, e_w = innovations(x)
+            r = simulate(inp, tw, RIG_A, PAPER_FLOW, math.exp(x[0]), math.exp(x[1]), dp0=dp0, t0=t_step,
+                         rtol=PSEUDO_RTOL, atol=1e-3) - fw
         except RuntimeError:  # a solve that fails is far from the optimum
-            return np.full(n_rows, 1e6)
-        return np.r_[e_pre / sig_e, e_w / sig_w]
-
+            return np.full(fw.size, 1e6)
+        return r - phi * np.r_[r_last, r[:-1]]
 
     best = None
-    dp00 = float(np.mean(f_pre)) / area / 1e3  # [kPa]
     for a0, p0 in ((0.5 * cs.alpha_v, cs.p_r), (cs.alpha_v, 2 * cs.p_r)):
-        x = np.array([math.log(a0), math.log(p0), dp00])
-        sig_w = sig_e
-        for _ in range(3):
-            # unbounded (scipy's bounded trust region stalled in Δp0 at rest here); a failed solve costs 1e6
-            r = least_squares(weighted, x, args=(sig_w,), x_scale=[0.1, 0.1, 0.1], diff_step=1e-4)
-            x = r.x
-            _, e_w = innovations(x)
-            sig_w = math.sqrt(e_w @ e_w / e_w.size + sig_e**2)
-        e_pre, e_w = innovations(x)
-        score = -0.5 * (e_pre @ e_pre) / sig_e**2 - 0.5 * e_w.size * math.log(e_w @ e_w + e_w.size * sig_e**2)
-        if best is None or score > best[0]:
-            best = (score, x, e_w)
-    _, x, e_w = best
-    return {"alpha_V": math.exp(x[0]), "p_R_Pa": math.exp(x[1]), "dp0_Pa": x[2] * 1e3,
-            "J": float(np.linalg.norm(e_w) / np.linalg.norm(fw))}
+        r = least_squares(innovations, np.log([a0, p0]), x_scale=[0.1, 0.1], diff_step=1e-4, xtol=1e-12,
+                          ftol=1e-12, gtol=1e-12)
+        if best is None or r.cost < best.cost:
+            best = r
+    return {"alpha_V": math.exp(best.x[0]), "p_R_Pa": math.exp(best.x[1]), "dp0_Pa": dp0,
+            "J": float(np.linalg.norm(best.fun) / np.linalg.norm(fw))}
 
 
 def run_identify(data: Path, out: Path, seed: int, extra: tuple[str, ...] = (), python: str | None = None) -> dict:

@@ -26,16 +26,12 @@ coverage. Here
   Nelder-Mead has 0.033), and the posterior stays centred on the eq. (9) optimum weighted by the noise's
   colour.
 
-What the intervals mean under model error: the misfit of a model that eq. (7) does not contain is the same
-in every repetition of a test; only the noise changes, so an estimate scatters about the *pseudo-true* value,
-the maximiser of the expected log-likelihood at the test's noise level (White 1982, "Maximum likelihood
-estimation of misspecified models"): the eq. (9) optimum of the noise-free record weighted by the noise colour,
-with Δp0 pulled by the misfit as far as the samples before the step allow. That is what the intervals aim at,
-not "the" α_V of a model that does not hold; on two-state data they hold it less often than nominal (13/18
-and 15/18 on the CI seed of tests/test_transient_coverage.py). The window's scale σ_w holds noise and model
-error, so where the misfit is not hidden by the colour the intervals widen by σ_w / σ_e
-(``window_scale_ratio`` per transient). How much the model misses is reported beside them (J, the residual
-diagnosis, the transient-to-transient spread in the drift table).
+Under model error this joint posterior misbehaves in a way the cut does not (:mod:`bayesdamper.inference.cut`,
+the default since issue 9's second round; this posterior is ``--coupling joint``): the window's misfit drags Δp0
+and the flow coefficients away from what their own data say (two-state data: C_L12 by up to 4.6 stage-1 sds in
+starts from rest), and α_V and p_R move with them, away from the eq. (9) optimum (13/18 and 15/18 of the CI
+seed's intervals held the eq. (9) optimum's White counterpart). This module keeps the likelihood both use
+(:func:`_joint_batch`, :class:`JointLogPosterior`), the MAP fit of the joint and the noise estimate.
 """
 
 from __future__ import annotations

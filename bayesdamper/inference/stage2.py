@@ -97,6 +97,9 @@ class StageTwoSettings:
     #: Sample the step's Δp and the flow coefficients with α_V and p_R (:mod:`~bayesdamper.inference.joint`);
     #: False: condition on their estimates (the paper's stage 2, kept for comparison).
     propagate: bool = True
+    #: How the window couples to Δp0 and stage 1 when they are propagated: ``cut`` (their own data only,
+    #: :mod:`~bayesdamper.inference.cut`) or ``joint`` (sampled with α_V and p_R, the window informs them).
+    coupling: str = "cut"
     alpha_v_bounds: tuple[float, float] = ALPHA_V_BOUNDS
     p_r_bounds: tuple[float, float] = P_R_BOUNDS
     sampler: SamplerSettings = field(default_factory=SamplerSettings)
@@ -283,7 +286,7 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
                     prior) -> TransientResult:
     from dataclasses import replace
 
-    from bayesdamper.inference import joint
+    from bayesdamper.inference import cut, joint
 
     t0 = time.perf_counter()
     code = {"plateau": joint.PLATEAU, "ar1": joint.AR1, "white": joint.WHITE}[settings.noise_model]
@@ -297,14 +300,25 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
     start = [np.log(pf.alpha_v), np.log(pf.p_r), jp.dp0_estimate, *prior.mean]
     if code == joint.AR1:
         start.append(float(np.clip(prior.noise.phi, space.lower[-1] + 0.01, space.upper[-1] - 0.01)))
-    x_map, cov = joint.fit_map(logpost, np.array(start))
-    x_map = space.clip_inside(x_map, margin=1e-3)
+    seed_t = task_seed(seed, transient.id)
+    if settings.coupling == "cut":  # sample θ2 | θ̂1, then carry θ1's own uncertainty in (inference/cut.py)
+        theta1 = np.r_[jp.dp0_estimate, prior.mean]
+        fit = cut.fit_conditional(logpost, theta1, np.r_[start[:2], start[7:]])
+        target = cut.ConditionalLogPosterior(logpost, theta1)
+        lower, upper, cov = target.lower, target.upper, fit.cov2
+        x_start = np.clip(fit.x2, lower + 1e-3 * (upper - lower), upper - 1e-3 * (upper - lower))
+        x_map = target.full(x_start)[0]
+    else:
+        x_map, cov = joint.fit_map(logpost, np.array(start))
+        x_map = space.clip_inside(x_map, margin=1e-3)
+        target, lower, upper, x_start = logpost, space.lower, space.upper, x_map
     gap = np.minimum(x_map[:2] - space.lower[:2], space.upper[:2] - x_map[:2])
     near_bound = cov is None or bool(np.any(gap < JOINT_BOUND_SDS * np.sqrt(np.diag(cov))[:2]))
-    sampler = replace(settings.sampler, n_walkers=max(settings.sampler.n_walkers, 2 * space.ndim + 2),
+    sampler = replace(settings.sampler, n_walkers=max(settings.sampler.n_walkers, 2 * x_start.size + 2),
                       **({} if near_bound else {"move": JOINT_MOVE, "check_every": JOINT_CHECK_EVERY}))
-    seed_t = task_seed(seed, transient.id)
-    res = sample_posterior(logpost, x_map, space.lower, space.upper, sampler, seed_t, progress, scale=cov)
+    res = sample_posterior(target, x_start, lower, upper, sampler, seed_t, progress, scale=cov)
+    if settings.coupling == "cut":
+        res = cut.propagate(res, logpost, theta1, fit, int(np.random.SeedSequence([seed_t, 1]).generate_state(1)[0]))
     flat = res.flat()
     phys = space.to_physical(flat)
     rng = np.random.default_rng(seed_t)
@@ -327,7 +341,8 @@ def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: i
         "J_map": cost_j(f_map, jp.force) if ok_map else float("inf"),
         **sampling_summary(res, space.names, phys),
         "shape": shape_report(flat, space.lower, space.upper),
-        "seed": seed_t, "propagated": True, "noise": prior.noise.as_dict() | {"model": settings.noise_model},
+        "seed": seed_t, "propagated": True, "coupling": settings.coupling,
+        "noise": prior.noise.as_dict() | {"model": settings.noise_model},
         "dp0_estimate_Pa": jp.dp0_estimate, "n_pre_samples": int(jp.pre_force.size),
         # σ_w / σ_e at the MAP: how much wider than the noise alone the window's scale (noise + model error)
         # makes the intervals

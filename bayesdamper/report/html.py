@@ -175,10 +175,17 @@ def _posterior_section(summary: Mapping) -> str:
         classes.append("" if e.get("converged") else "bad")
     su = summary.get("static_uncertainty") or {}
     if su.get("propagated"):
-        what = ("<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled together with "
-                "the pressure difference at the step (the samples before the step are in the likelihood) and the "
-                "four flow coefficients (under stage 1's posterior as prior), so their uncertainty is in every "
-                "interval. The noise is AR(1) with φ from the plateaus, held fixed; in the window its scale "
+        cut_text = ("<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled given the "
+                    "pressure difference at the step and the four flow coefficients, and the uncertainty of those "
+                    "— from their own data: the samples before the step and stage 1's plateaus — is carried into "
+                    "every interval (a <em>cut</em> posterior: the window's misfit cannot drag the step force or "
+                    "the static coefficients away from what their data say). ")
+        joint_text = ("<p>For each transient, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled together "
+                      "with the pressure difference at the step (the samples before the step are in the "
+                      "likelihood) and the four flow coefficients (under stage 1's posterior as prior), so their "
+                      "uncertainty is in every interval. ")
+        what = ((cut_text if su.get("coupling", "joint") == "cut" else joint_text)
+                + "The noise is AR(1) with φ from the plateaus, held fixed; in the window its scale "
                 "σ<sub>w</sub> is estimated, so where the model misses the data (σ<sub>w</sub>/σ well above 1, "
                 "σ the plateau noise) the intervals widen by that factor: they then promise to hold the value "
                 "the eq. (9) optimum would take on noise-free data of the same test, not a true α<sub>V</sub> of "

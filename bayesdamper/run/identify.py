@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
+from bayesdamper.inference.cut import COUPLINGS
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
@@ -64,8 +65,10 @@ class _Job:
 
 
 def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps,
-                        propagate: bool = True) -> StageTwoSettings:
+                        propagate: bool = True, coupling: str = "cut") -> StageTwoSettings:
     make_noise_model(noise_model)  # validate before any work
+    if coupling not in COUPLINGS:
+        raise SettingsError(f"--coupling must be one of {', '.join(COUPLINGS)}, got {coupling!r}")
     if max_steps is not None and max_steps < 1:
         raise SettingsError(f"--max-steps must be a positive number of steps, got {max_steps}")
     sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
@@ -75,7 +78,7 @@ def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, ma
     if (b := _bounds(p_r_prior, "--p-r-prior")) is not None:
         kw["p_r_bounds"] = b
     settings = StageTwoSettings(credible_mass=credible_mass, noise_model=noise_model, sampler=sampler,
-                                propagate=propagate, **kw)
+                                propagate=propagate, coupling=coupling, **kw)
     settings.space()
     return settings
 
@@ -184,9 +187,13 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
     if prior is not None:
         summary["noise"] = prior.noise.as_dict()
         summary["static_uncertainty"] = {
-            "method": "propagated: the four flow coefficients are sampled in every transient's posterior under "
-                      "the stage-1 posterior (Student-t per direction) as prior, with the step's Δp",
-            "propagated": True}
+            "method": ("propagated as a cut: the step's Δp (samples before the step) and the four flow "
+                       "coefficients (stage 1, moment-matched Student-t per direction) keep their own posteriors "
+                       "and move α_V, p_R along the window optimum's sensitivity"
+                       if settings.coupling == "cut" else
+                       "propagated jointly: the four flow coefficients are sampled in every transient's posterior "
+                       "under the stage-1 posterior (Student-t per direction) as prior, with the step's Δp"),
+            "coupling": settings.coupling, "propagated": True}
     else:
         ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")]
                            for e in entries])
@@ -216,7 +223,8 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
                  credible_mass: float = 0.9, tmax: float = 3.0, workers: int = 0, noise_model: str = "plateau",
                  alpha_v_prior=None, p_r_prior=None, max_steps: int | None = None, only: str | None = None,
                  figures: bool = True, force: bool = False,
-                 scheduler: str | None = None, mode: str = "auto", propagate: bool = True) -> dict | list[dict]:
+                 scheduler: str | None = None, mode: str = "auto", propagate: bool = True,
+                 coupling: str = "cut") -> dict | list[dict]:
     """``bayesdamper identify``: stage 1 and Bayesian stage 2 for every transient; write OUT.
 
     Parameters
@@ -249,7 +257,8 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
     dirs = [data_dir] if single else list(data_dir)
     if not dirs:
         raise SettingsError("no data-set folder given")
-    settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps, propagate)
+    settings = _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, max_steps, propagate,
+                                   coupling)
     progress = Progress()
     check_mode(mode)
     with progress.phase("load, classify, segment, stage 1", unit="data set") as ph:

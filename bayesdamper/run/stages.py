@@ -15,6 +15,7 @@ import numpy as np
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.inference.drift import fit_drift
 from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
+from bayesdamper.inference.plateau_noise import settled_plateaus
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.stage1 import fit_static
 from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult, identify_transient
@@ -32,6 +33,10 @@ def prepare(data_dir: str | Path, tmax: float):
 def prepare_loaded(ds, tmax: float):
     """Segment a loaded data set and fit stage 1: ``(segs, transients, static)``."""
     segs = segment_dataset(ds, tmax=tmax)
+    try:  # stage 1 and the noise take only plateaus whose force has settled
+        segs, _ = settled_plateaus(segs)
+    except ValueError:  # no plateau with scatter: fit_static says what is wrong
+        pass
     transients = [t for s in segs for t in s.transients]
     plateaus = [p for s in segs for p in s.plateaus]
     static = fit_static(plateaus, source=str(ds.path))
