@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from bayesdamper.inference.joint import BOX_SDS, FIT_ATOL, FIT_RTOL, JointLogPosterior
+from bayesdamper.inference.joint import BOX_SDS, FIT_ATOL, FIT_RTOL, JointLogPosterior, central_jacobian
 
 __all__ = ["COUPLINGS", "ConditionalLogPosterior", "CutFit", "fit_conditional", "module_covariance", "propagate"]
 
@@ -162,15 +162,9 @@ def fit_conditional(joint: JointLogPosterior, theta1: np.ndarray, start2: np.nda
         sigma_w = joint.window_scale(full(x), phi)
     x_full = full(x)
     steps = np.r_[1e-4, 1e-4, (space.upper[2:7] - space.lower[2:7]) / (2 * BOX_SDS) * 1e-2]
-    jac = np.empty((n_rows, 7))
-    for j in range(7):
-        xp, xm = x_full.copy(), x_full.copy()
-        xp[j] += steps[j]
-        xm[j] -= steps[j]
-        rp, rm = _window_residual(joint, xp, phi, sigma_w), _window_residual(joint, xm, phi, sigma_w)
-        if rp is None or rm is None:
-            return CutFit(np.r_[x, start2[2:]], None, np.zeros((idx.size, 5)), sigma_w)
-        jac[:, j] = (rp - rm) / (2 * steps[j])
+    jac = central_jacobian(lambda th: _window_residual(joint, th, phi, sigma_w), x_full, steps)
+    if jac is None:
+        return CutFit(np.r_[x, start2[2:]], None, np.zeros((idx.size, 5)), sigma_w)
     j2, j1 = jac[:, :2], jac[:, 2:7]
     info = j2.T @ j2
     try:

@@ -49,7 +49,7 @@ from bayesdamper.inference.problem import freeze_window
 from bayesdamper.physics.single_state import solve_single_state
 
 __all__ = ["AR1", "PLATEAU", "WHITE", "JointLogPosterior", "JointProblem", "PlateauNoise", "StageOnePrior",
-           "ar1_from_segments", "fit_map", "plateau_noise"]
+           "ar1_from_segments", "central_jacobian", "fit_map", "plateau_noise"]
 
 #: Names of the flow coefficients in the sampled vector.
 FLOW_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
@@ -366,6 +366,23 @@ class JointLogPosterior:
         return float(max(np.sqrt(np.mean(e[n_pre:] ** 2)), 1e-9))
 
 
+def central_jacobian(fun, x: np.ndarray, steps: np.ndarray) -> np.ndarray | None:
+    """Jacobian of the vector function ``fun`` at ``x`` by central differences with per-entry ``steps``, shape
+    (len(fun(x)), len(x)); None if ``fun`` returns None (a failed solve) at any point. For the Gauss-Newton
+    covariances of :func:`fit_map` and :func:`bayesdamper.inference.cut.fit_conditional` (a least-squares
+    solver's own Jacobian is one-sided)."""
+    cols = []
+    for j, h in enumerate(steps):
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        fp, fm = fun(xp), fun(xm)
+        if fp is None or fm is None:
+            return None
+        cols.append((fp - fm) / (2 * h))
+    return np.column_stack(cols)
+
+
 def fit_map(logpost: JointLogPosterior, start: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """Least-squares MAP of the joint posterior (Gaussian form of the flow prior, φ held at the plateau value)
     and the Gauss-Newton covariance of the transformed vector there (None if singular).
@@ -405,13 +422,7 @@ def fit_map(logpost: JointLogPosterior, start: np.ndarray) -> tuple[np.ndarray, 
         sigma_w = logpost.window_scale(np.r_[x, tail], phi)
     # Gauss-Newton covariance by central differences (the solver's own Jacobian is one-sided)
     f0 = fun(x)
-    jac = np.empty((f0.size, n_model))
-    for j in range(n_model):
-        h = 1e-3 * x_scale[j]
-        xp, xm = x.copy(), x.copy()
-        xp[j] += h
-        xm[j] -= h
-        jac[:, j] = (fun(xp) - fun(xm)) / (2 * h)
+    jac = central_jacobian(fun, x, 1e-3 * x_scale)
     try:
         cov = np.linalg.inv(jac.T @ jac)
         np.linalg.cholesky(cov)
