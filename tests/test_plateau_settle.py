@@ -44,6 +44,10 @@ def test_soft_gas_first_plateaus_are_dropped_and_stage_one_recovers():
     # the first ramp (index 0) of the fastest tests drifts; nothing else is dropped
     assert {(n, i) for n, i, _ in dropped} >= {("v3", 0)}
     assert all(i == 0 and tv > SETTLED_T for _, i, tv in dropped)
+    # they are kept on the record as unsettled (reported, not used), the others stay plateaus
+    for s0, s1 in zip(segs, kept, strict=True):
+        assert {p.index for p in s1.unsettled} == {i for n, i, _ in dropped if n == s0.record.name}
+        assert len(s1.plateaus) + len(s1.unsettled) == len(s0.plateaus)
     # the kept plateaus are points of eq. (4): stage 1's 99 % intervals hold the true coefficients
     fit = fit_static([p for s in kept for p in s.plateaus])
     iv = fit.intervals(0.99)
@@ -60,5 +64,6 @@ def test_settled_plateaus_are_kept(seed):
     segs = _segs(60.0, 1.5e5, seed)
     kept, dropped = settled_plateaus(segs)
     assert dropped == []
+    assert all(s.unsettled == () for s in kept)
     assert sum(len(s.plateaus) for s in kept) == sum(len(s.plateaus) for s in segs)
     assert np.all([len(s.plateaus) == 3 for s in kept])

@@ -144,7 +144,7 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
     Returns
     -------
     records : list of SegmentedRecord
-        The records with their unsettled plateaus removed.
+        The records with their unsettled plateaus moved from ``plateaus`` to ``unsettled``.
     dropped : list of (test, plateau index, t)
     """
     from dataclasses import replace
@@ -163,7 +163,8 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
         if tval > SETTLED_T and left[p.direction] > MIN_PLATEAUS_PER_DIRECTION:
             drop.add((p.test, p.index))
             left[p.direction] -= 1
-    out = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop))
+    out = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop),
+                   unsettled=tuple(p for p in s.plateaus if (p.test, p.index) in drop))
            for s in segmented_records]
     dropped = [(p.test, p.index, float(tv)) for tv, p in scored if (p.test, p.index) in drop]
     return out, dropped

@@ -169,6 +169,9 @@ class SegmentedRecord:
         are the first and last sample times. Read-only.
     knot_displacements : ndarray, shape (n_knots,)
         Fitted displacement at the knots [m]. Read-only.
+    unsettled : tuple of Plateau
+        Plateaus taken out of ``plateaus`` because their force still drifts
+        (:func:`bayesdamper.inference.plateau_noise.settled_plateaus`); empty until that check has run.
     """
 
     record: TestRecord
@@ -177,6 +180,7 @@ class SegmentedRecord:
     plateaus: tuple[Plateau, ...]
     knot_times: np.ndarray
     knot_displacements: np.ndarray
+    unsettled: tuple[Plateau, ...] = ()
 
     @property
     def name(self) -> str:

@@ -111,15 +111,19 @@ def _data_section(summary: Mapping) -> str:
     ids = {e["id"] for e in summary.get("segments", [])}
     out.append("<p>Segmentation: every velocity step (the start from rest and each reversal) begins a "
                f"transient window of T<sub>max</sub> = {_num(summary.get('tmax_s'), 'g')} s; the settled end "
-               "of each ramp is a plateau, one point of the static characteristic. Bold rows were identified "
-               "in this run.</p>")
+               "of each ramp is a plateau, one point of the static characteristic, unless its force still drifts "
+               "(linear trend |t| &gt; 3 under the plateaus' noise): stage 1 leaves such a plateau out. Bold rows "
+               "were identified in this run.</p>")
     rows = []
     for st in data.get("steps", []):
         sid = f"{st['test']}_s{st['index']}"  # the transient's segment id
         rows.append([f"<b>{_e(sid)}</b>" if sid in ids else _e(sid), _e(st["kind"]),
                      f"{int(st['direction']):+d}",
                      _num(st["velocity_m_s"], ".3f", 1e3), _num(st["t_step_s"], ".3f"),
-                     _num(st["force_N"], ".1f"), _num(st.get("plateau_force_N"), ".1f")])
+                     _num(st["force_N"], ".1f"),
+                     _num(st.get("plateau_force_N"), ".1f")
+                     + ("" if st.get("plateau_in_stage1", True) or st.get("plateau_force_N") is None
+                        else ' <span class="note">drifting: not in stage 1</span>')])
     out.append(_table(["transient (step)", "kind", "dir", "v [mm/s]", "t<sub>step</sub> [s]",
                        "F at step [N]", "plateau F [N]"], rows, left=2))
     return "".join(out)

@@ -167,7 +167,8 @@ def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
 
 def data_table(ds, segs) -> dict:
     """The data set and its segmentation as plain values (for ``summary.json`` and the report)."""
-    plateau = {(p.test, p.index): p for s in segs for p in s.plateaus}
+    plateau = {(p.test, p.index): p for s in segs for p in (*s.plateaus, *s.unsettled)}
+    left_out = {(p.test, p.index) for s in segs for p in s.unsettled}
     steps = []
     for s in segs:
         for st in s.steps:
@@ -177,7 +178,9 @@ def data_table(ds, segs) -> dict:
                 "direction": int(st.direction), "velocity_m_s": float(abs(st.velocity_after)),
                 "t_step_s": float(st.time), "force_N": float(st.force),
                 "plateau_force_N": (float(np.sign(st.direction) * p.pressure_drop * ds.damper.piston_area)
-                                    if p else None)})
+                                    if p else None),
+                # a plateau whose force still drifts is not a point of eq. (4): stage 1 leaves it out
+                "plateau_in_stage1": bool(p) and (s.record.name, st.index) not in left_out})
     records = [{"name": r.name, "file": r.path.name, "n_samples": int(r.time.size),
                 "sample_rate_Hz": float(r.sample_rate), "duration_s": r.duration, "sha256": r.sha256}
                for r in ds.records]
