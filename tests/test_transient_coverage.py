@@ -156,10 +156,11 @@ def _sbc_replicate(k: int) -> list[tuple[int, int]]:
     damper = DamperConstants(RIG_A["area"], RIG_A["v01"], RIG_A["v02"], RIG_A["b0"])
     rec = TestRecord("sbc", Path("sbc.csv"), t, inp.displacement(t), f, "0" * 64)
     seg = segment_record(rec, damper, tmax=3.0)
-    # the joint coupling: SBC needs the exact Bayesian posterior of the generating model, which the cut is not
-    # where the window informs Δp0 and the flow coefficients; the cut's sampler targets the same likelihood
-    # conditionally, and its propagation is checked in tests/test_cut.py and by the coverage tests above
-    settings = StageTwoSettings(alpha_v_bounds=SBC_ALPHA, p_r_bounds=SBC_P_R, coupling="joint")
+    # the reported (cut) posterior. SBC's ranks are uniform for the exact Bayesian posterior; the cut is wider
+    # than that where the window informs Δp0 and the flow coefficients (ranks then bunch in the middle), so the
+    # χ² rule also bounds how much the cut over-disperses. Measured, 40 replicates: cut α_V p = 0.259, central
+    # 90 % 0.938, p_R p = 0.663, 0.912; the joint posterior (--coupling joint) α_V p = 0.152, p_R p = 0.812.
+    settings = StageTwoSettings(alpha_v_bounds=SBC_ALPHA, p_r_bounds=SBC_P_R)
     out = []
     for tr in seg.transients:
         res = identify_transient(tr, damper, FlowCoefficients(*m), settings, k, prior=prior)
