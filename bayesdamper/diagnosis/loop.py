@@ -101,6 +101,13 @@ def report_text(d: dict) -> str:
              f"residual rms grows with speed as v^{s['rms_vs_speed_log_slope']:.2f}, centroid "
              f"{s['median_t_centroid_s']:.2f} s after the step, dominant frequency "
              f"{s['median_peak_frequency_Hz']:.2f} Hz."]
+    sig = d.get("residual_dynamics") or {}
+    if sig.get("summary"):
+        lines.append(f"Residual dynamics (leave-one-speed-out, from the model's own signals): {sig['summary']}.")
+        cb, ca = sig.get("cross_correlation_before"), sig.get("cross_correlation_after")
+        if cb and ca:
+            lines.append(f"Residual-{cb['driver']} cross-correlation outside its 95 % band at "
+                         f"{cb['fraction_outside']:.0%} of lags before, {ca['fraction_outside']:.0%} after.")
     if d["candidates"]:
         ranked = ", ".join(f"{c['effect']} ({c['score']:+.0f})" for c in d["candidates"])
         lines.append(f"Candidates, first round, by delta-BIC_eff (select <= {SELECT_DELTA_BIC:g}): {ranked}.")

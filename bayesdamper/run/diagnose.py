@@ -33,6 +33,7 @@ from bayesdamper.diagnosis.residual import (
     structure_test,
     summarise_structure,
 )
+from bayesdamper.diagnosis.signature import residual_cross_correlation, residual_signature
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
@@ -129,6 +130,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         row.update(describe_residual(tr.time - tr.t_step, r, tr.force, rate))
         rows.append(row)
     structure = summarise_structure(rows)
+    # the residual's dynamic signature from the model's own signals (measured - model; base_resid is model - measured)
+    base_model = [tr.force + r for tr, r in zip(transients, base_resid, strict=True)]
+    with progress.phase("diagnose: residual dynamics", unit="fit"):
+        signature = residual_signature(transients, [-r for r in base_resid], base_model, ds.damper.piston_area,
+                                       static.coefficients)
+        progress.note(signature.get("summary") or signature.get("reason", ""))
     structure["parameters_by_kind_median"] = {
         kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
                for name in ("alpha_V", "p_R_Pa")}
@@ -168,6 +175,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         final_resid = _residuals_at_medians(final, final_problems)
     else:
         final, final_resid = base, base_resid
+    if "cross_correlation_before" in signature:
+        final_model = [tr.force + r for tr, r in zip(transients, final_resid, strict=True)]
+        signature["cross_correlation_after"] = residual_cross_correlation(
+            transients, [-r for r in final_resid], final_model, ds.damper.piston_area,
+            (flow_for(fixed) or static.coefficients) if selected else static.coefficients,
+            signature["cross_correlation_before"]["driver"])
     forces = [tr.force for tr in transients]
     base_entries = [r.entry for r in base]
     final_entries = [r.entry for r in final]
@@ -196,6 +209,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         "drift_before": drift_summary(base_entries, credible_mass, seed),
         "drift_after": drift_summary(final_entries, credible_mass, seed),
         "structure_before": {"summary": structure, "transients": rows},
+        "residual_dynamics": signature,
         "structure_after": {"summary": summarise_structure(after_rows), "transients": after_rows},
         "criterion": {"name": "delta_BIC_eff", "select_at_or_below": SELECT_DELTA_BIC,
                       "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs plateau noise, "
