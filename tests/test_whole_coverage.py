@@ -45,7 +45,7 @@ PHI = 0.8
 POOLED_BAND = (0.80, 0.99)
 #: Smallest share of converged records. Not every record determines every parameter well: a 0.5 Hz sine
 #: sampled at 100 Hz (2 of the first 14 or 20 replicates) leaves α_V and p_R on a curved ridge whose τ keeps
-#: growing past 100 steps, and the rules report "not converged" at the 6000-step budget rather than accept
+#: growing past 100 steps, and the rules report "not converged" at the step budget rather than accept
 #: it. 0.8 allows that cell and two more (a 30-record run had 3 unconverged: that cell and a 1 Hz sine at
 #: 250 Hz with AR(1) noise; the constant was chosen after it, and is said so). The intervals of every record,
 #: converged or not, enter the coverage (they are what the report shows).

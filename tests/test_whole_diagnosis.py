@@ -154,7 +154,7 @@ def test_lab_mr_loop(tmp_path, capsys):
     loops, and the added effects' parameters per record.
 
     The sampling is bounded (100 steps): on these records the eq. (7) posterior does not converge within the
-    default 6000 steps either (α_V and p_R are not determined by 1 Hz sines of this damper: they span the
+    default step budget either (α_V and p_R are not determined by 1 Hz sines of this damper: they span the
     prior box; the AR(1) noise model takes the smooth model error for noise colour, φ ≈ 0.9), which the
     report must say per record.
     """
