@@ -13,7 +13,7 @@ import pytest
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.physics.effect_vector import EFFECT_SLOTS, pack_effects, unpack_effects
+from bayesdamper.physics.effect_vector import EFFECT_SLOTS, VECTOR_EFFECTS, pack_effects, unpack_effects
 from bayesdamper.physics.effects import (
     EFFECT_NAMES,
     EFFECTS,
@@ -53,14 +53,16 @@ def plateau(t, t_a, t_b):
 
 # ----------------------------------------------------------------------------- registry and specs
 def test_registry_names_and_slots():
-    assert EFFECT_NAMES == ("friction", "backlash", "actuator_lag", "valve_dynamics", "series_compliance",
-                            "inertia")
-    slots = [p.slot for e in EFFECTS.values() for p in e.params]
+    assert EFFECT_NAMES[:6] == VECTOR_EFFECTS == ("friction", "backlash", "actuator_lag", "valve_dynamics",
+                                                  "series_compliance", "inertia")
+    slots = [p.slot for n in VECTOR_EFFECTS for p in EFFECTS[n].params]
     assert sorted(slots) == sorted(EFFECT_SLOTS)
+    assert not any(p.slot for n in EFFECT_NAMES[6:] for p in EFFECTS[n].params)  # composed kernel only
     for e in EFFECTS.values():
         assert e.description and e.required
         for p in e.params:
-            assert p.lower > 0 and p.log and p.description
+            assert p.description and p.lower < p.upper
+            assert (p.lower > 0) if p.log else True
             assert p.lower <= p.default <= p.upper or (p.optional and p.default == p.off)
 
 
@@ -72,8 +74,8 @@ def test_pack_unpack_roundtrip():
     assert vec[EFFECT_SLOTS.index("coulomb")] == 150.0
     back = unpack_effects(vec)
     assert back == complete_effects(eff)
-    assert not np.any(pack_effects({name: e.off_values() for name, e in EFFECTS.items()}))
-    assert set(unpack_effects(np.zeros(len(EFFECT_SLOTS)), keep_off=True)) == set(EFFECT_NAMES)
+    assert not np.any(pack_effects({name: EFFECTS[name].off_values() for name in VECTOR_EFFECTS}))
+    assert set(unpack_effects(np.zeros(len(EFFECT_SLOTS)), keep_off=True)) == set(VECTOR_EFFECTS)
 
 
 @pytest.mark.parametrize("text,name,values", [
@@ -123,12 +125,17 @@ def test_parse_effect_specs_repeated():
 
 
 # ----------------------------------------------------------------------------- off = eq. (7)
-@pytest.mark.parametrize("name", EFFECT_NAMES)
+#: Effects without parameter values that give eq. (7) back, and why.
+NO_EXACT_OFF = {"accumulator": "its absolute pressures replace eq. (6)'s guess at every value"}
+
+
+@pytest.mark.parametrize("name", [n for n in EFFECT_NAMES if n not in NO_EXACT_OFF])
 def test_off_values_reproduce_eq7(name, base):
     f = force({name: EFFECTS[name].off_values()})
     ref = AREA * simulate_single_state(T, EXC, D, PAPER_FLOW, DYN, dp0=0.0, t0=0.0)
     assert np.max(np.abs(f - ref)) < SAME_N
-    assert np.array_equal(f, base)
+    if name in VECTOR_EFFECTS:  # same kernel: bit-identical (the others run on the composed kernel)
+        assert np.array_equal(f, base)
 
 
 # ----------------------------------------------------------------------------- physics

@@ -21,7 +21,9 @@ EFFECT_SLOTS = ("coulomb", "viscous", "stribeck", "stribeck_v", "gap", "lag_tau"
                 "compliance", "mass")
 
 
-_SLOT_PARAM = {p.slot: (e.name, p) for e in EFFECTS.values() for p in e.params}
+_SLOT_PARAM = {p.slot: (e.name, p) for e in EFFECTS.values() for p in e.params if p.slot}
+#: The effects that fill slots of the vector (the others run only on the composed kernel).
+VECTOR_EFFECTS = tuple(n for n, e in EFFECTS.items() if e.in_fixed_vector)
 
 
 def pack_effects(effects: Mapping[str, Mapping[str, float] | None] | None) -> np.ndarray:
@@ -35,6 +37,9 @@ def pack_effects(effects: Mapping[str, Mapping[str, float] | None] | None) -> np
     """
     vec = np.zeros(len(EFFECT_SLOTS))
     for name, values in complete_effects(effects).items():
+        if name not in VECTOR_EFFECTS:
+            raise SettingsError(f"effect {name} has no slots in the fixed effect vector: use "
+                                "bayesdamper.physics.compose")
         for p in EFFECTS[name].params:
             vec[EFFECT_SLOTS.index(p.slot)] = p.to_slot(values[p.name])
     return vec
@@ -50,6 +55,8 @@ def unpack_effects(vec: np.ndarray, *, keep_off: bool = False) -> dict[str, dict
         raise SettingsError(f"effect vector must have shape ({len(EFFECT_SLOTS)},), got {vec.shape}")
     out = {}
     for name, e in EFFECTS.items():
+        if name not in VECTOR_EFFECTS:
+            continue
         slots = [float(vec[EFFECT_SLOTS.index(p.slot)]) for p in e.params]
         if keep_off or any(s != 0.0 for s in slots):
             out[name] = {p.name: p.from_slot(s) for p, s in zip(e.params, slots, strict=True)}

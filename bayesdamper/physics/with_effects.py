@@ -31,8 +31,9 @@ from bayesdamper.physics.augmented import (
     _VISCOUS,
     solve_augmented,
 )
-from bayesdamper.physics.effect_vector import EFFECT_SLOTS, pack_effects, unpack_effects
-from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.physics.compose import ComposedEffects, compose, solve_composed
+from bayesdamper.physics.effect_vector import EFFECT_SLOTS, VECTOR_EFFECTS, pack_effects, unpack_effects
+from bayesdamper.physics.effects import EFFECTS, complete_effects
 from bayesdamper.physics.effects.backlash import backlash_knots
 from bayesdamper.physics.effects.friction import friction_force, friction_force_scalar
 from bayesdamper.physics.effects.inertia import CORNER_TIME_S
@@ -132,7 +133,19 @@ def simulate_augmented(
     """
     t_out = _times(t_out)
     t0 = _start(t_out, t0)
-    eff = pack_effects(effects)
+    arg = effect_argument(effects)
+    if isinstance(arg, ComposedEffects):
+        kt, ky = arg.transform_knots(excitation.knot_times, excitation.knot_displacements)
+        kt, ky = _held_knots(kt, ky, t0, float(t_out[-1]))
+        force, status = solve_composed(arg, t_out, kt, ky, t0, float(dp0), _velocity_before(kt, ky, t0), damper,
+                                       flow.as_array(), float(dynamic.liquid_gas_ratio),
+                                       float(dynamic.reference_pressure), float(rtol), float(atol))
+        if status != STATUS_OK:
+            raise BayesDamperError(f"composed solve failed (alpha_V={dynamic.liquid_gas_ratio!r}, "
+                                   f"p_R={dynamic.reference_pressure!r} Pa, effects={arg.as_dict()}): "
+                                   f"{_MESSAGES[int(status)]}")
+        return force
+    eff = arg
     kt, ky = _piston_knots(excitation, eff[_GAP], t0, float(t_out[-1]))
     force, status = solve_augmented(
         t_out, kt, ky, t0, float(dp0), _velocity_before(kt, ky, t0), damper.piston_area,
@@ -143,6 +156,15 @@ def simulate_augmented(
                                f"p_R={dynamic.reference_pressure!r} Pa, effects={unpack_effects(eff)}): "
                                f"{_MESSAGES[int(status)]}")
     return force
+
+
+def effect_argument(effects: Mapping[str, Mapping[str, float] | None] | None) -> np.ndarray | ComposedEffects:
+    """What the simulators take for an effect set: the fixed effect vector when every named effect has
+    slots in it (the hand-written kernel), else a :class:`~bayesdamper.physics.compose.ComposedEffects`."""
+    full = complete_effects(effects)
+    if all(name in VECTOR_EFFECTS for name in full):
+        return pack_effects(full)
+    return compose(full)
 
 
 # ----------------------------------------------------------------------------- problem binding
@@ -240,16 +262,20 @@ class AugmentedProblem:
                                                float(eff[_STRIBECK]), float(eff[_STRIBECK_V]))
         return f / self.damper.piston_area
 
-    def simulate_force(self, alpha_v: float, p_r: float, eff: np.ndarray) -> tuple[np.ndarray, bool]:
+    def simulate_force(self, alpha_v: float, p_r: float,
+                       eff: np.ndarray | ComposedEffects) -> tuple[np.ndarray, bool]:
         """Computed force F_C [N] at the sample times and whether the solve succeeded.
 
         Parameters
         ----------
         alpha_v, p_r : float
             α_V [-] and p_R [Pa] of eq. (6).
-        eff : ndarray, shape (len(EFFECT_SLOTS),)
-            Effect vector (:func:`pack_effects`).
+        eff : ndarray, shape (len(EFFECT_SLOTS),), or ComposedEffects
+            Effect vector (:func:`pack_effects`) or any combination of effects (:func:`effect_argument`);
+            with the latter Δp at the step is solved from the step force with every effect's force.
         """
+        if isinstance(eff, ComposedEffects):
+            return self._simulate_composed(float(alpha_v), float(p_r), eff)
         eff = np.asarray(eff, dtype=np.float64)
         gap = float(eff[_GAP]) if eff.shape == (len(EFFECT_SLOTS),) else math.nan
         if not 0.0 <= gap < math.inf:  # the kernel checks the other slots
@@ -260,6 +286,20 @@ class AugmentedProblem:
                                         d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
                                         d.liquid_bulk_modulus, self._flow4, float(alpha_v), float(p_r), eff,
                                         self.rtol, self.atol)
+        return force, status == STATUS_OK
+
+    def _simulate_composed(self, alpha_v: float, p_r: float, comp: ComposedEffects) -> tuple[np.ndarray, bool]:
+        key = ("composed_knots", comp.names, comp.values.tobytes())
+        hit = self._cache.get("composed_knots")
+        if hit is not None and hit[0] == key:
+            kt, ky, v_prev = hit[1]
+        else:
+            kt, ky = comp.transform_knots(self.record_knot_times, self.record_knot_displacements)
+            kt, ky = _held_knots(kt, ky, self.t_step, float(self.time[-1]))
+            v_prev = _velocity_before(kt, ky, self.t_step)
+            self._cache["composed_knots"] = (key, (kt, ky, v_prev))
+        force, status = solve_composed(comp, self.time, kt, ky, self.t_step, self.step_force, v_prev, self.damper,
+                                       self._flow4, alpha_v, p_r, self.rtol, self.atol, from_force=True)
         return force, status == STATUS_OK
 
 

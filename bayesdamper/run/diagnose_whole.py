@@ -32,6 +32,7 @@ from bayesdamper.diagnosis.whole_loop import (
     static_findings,
 )
 from bayesdamper.io.outputs import versions
+from bayesdamper.physics.effect_vector import VECTOR_EFFECTS
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.run.outfolder import close_diagnosis
 from bayesdamper.run.progress import Progress, count_files
@@ -135,7 +136,8 @@ def run_whole_diagnosis(plan, out: str, *, seed: int = 0, effects: list[str] | N
         if missing:
             raise SettingsError(f"--tests: no record(s) named {', '.join(sorted(missing))} in {ds.path}")
         windows = [w for w in windows if w.test in tests]
-    candidates = [OFFSET] + (list(effects) if effects else list(EFFECTS))
+    # whole records run on the spline-input kernel of the fixed effect vector
+    candidates = [OFFSET] + (list(effects) if effects else list(VECTOR_EFFECTS))
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)

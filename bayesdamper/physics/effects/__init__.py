@@ -1,9 +1,12 @@
 """Candidate physical effects that eq. (7) lacks: one module per effect, and their registry.
 
-Each module defines ``EFFECT``, an :class:`Effect` naming the effect's parameters (SI units,
-log-uniform prior bounds, default strength, the value that switches it off, and the slot of the
-augmented effect vector it fills), plus the scalar physics the forward kernel calls. The forward
-model with any combination of effects is :mod:`bayesdamper.physics.augmented`.
+Each module defines ``EFFECT``, an :class:`Effect` naming the effect's parameters (SI units, prior
+bounds, default strength, the value that switches it off), its extra states and the numba hooks that say
+where it acts (protocol: :mod:`bayesdamper.physics.effects.signals`). The registry is every module of
+this package that defines ``EFFECT``: adding an effect is adding a module. Any combination of effects
+runs on the composed kernel (:mod:`bayesdamper.physics.compose`); the first six (the ``slot`` of their
+parameters places them in the fixed effect vector) also have the hand-written fast kernel
+:mod:`bayesdamper.physics.augmented`.
 
 An effect set is a ``dict[effect name -> dict[parameter name -> value]]``; :func:`complete_effects`
 fills the defaults, :func:`parse_effect_spec` reads the command-line form
@@ -12,15 +15,18 @@ fills the defaults, :func:`parse_effect_spec` reads the command-line form
 
 from __future__ import annotations
 
+import importlib
 import math
+import pkgutil
 from collections.abc import Iterable, Mapping
+from types import ModuleType
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.physics.effects import actuator_lag, backlash, friction, inertia, series_compliance, valve_dynamics
 from bayesdamper.physics.effects.base import Effect, EffectParam
 
 __all__ = [
     "EFFECTS",
+    "EFFECT_MODULES",
     "EFFECT_NAMES",
     "Effect",
     "EffectParam",
@@ -30,11 +36,29 @@ __all__ = [
     "parse_effect_specs",
 ]
 
-#: The registry: effect name -> Effect, in a fixed order.
-EFFECTS: dict[str, Effect] = {
-    m.EFFECT.name: m.EFFECT
-    for m in (friction, backlash, actuator_lag, valve_dynamics, series_compliance, inertia)
-}
+#: The six effects of the fixed effect vector, first and in this order (their outputs keep their order).
+_FIRST = ("friction", "backlash", "actuator_lag", "valve_dynamics", "series_compliance", "inertia")
+
+
+def _discover() -> dict[str, ModuleType]:
+    found = {}
+    for info in pkgutil.iter_modules(__path__):
+        if info.name in ("base", "signals") or info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{__name__}.{info.name}")
+        effect = getattr(mod, "EFFECT", None)
+        if isinstance(effect, Effect):
+            if effect.name in found:  # pragma: no cover - a packaging error
+                raise ImportError(f"two effect modules are called {effect.name}")
+            found[effect.name] = mod
+    order = [n for n in _FIRST if n in found] + sorted(n for n in found if n not in _FIRST)
+    return {n: found[n] for n in order}
+
+
+#: The registry's modules: effect name -> module, the six of the fixed vector first, then by name.
+EFFECT_MODULES: dict[str, ModuleType] = _discover()
+#: The registry: effect name -> Effect, in the order of :data:`EFFECT_MODULES`.
+EFFECTS: dict[str, Effect] = {n: m.EFFECT for n, m in EFFECT_MODULES.items()}
 #: Names of the registered effects.
 EFFECT_NAMES: tuple[str, ...] = tuple(EFFECTS)
 

@@ -16,9 +16,12 @@ as an ODE state.
 
 from __future__ import annotations
 
-from bayesdamper.physics.effects.base import Effect, EffectParam
+from numba import njit
 
-__all__ = ["EFFECT"]
+from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import VP, YP
+
+__all__ = ["EFFECT", "STATES", "STATE_ATOL", "displacement", "initial"]
 
 EFFECT = Effect(
     name="actuator_lag",
@@ -29,3 +32,25 @@ EFFECT = Effect(
                     slot="lag_tau"),
     ),
 )
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+#: State of the composed kernel: the trail e = y_A - y_D [m], and its absolute tolerance.
+STATES = ("trail_m",)
+STATE_ATOL = (1.0e-12,)
+
+
+@njit(cache=True, error_model="numpy")
+def displacement(sig, z, p, dz):
+    """(y_D, v_D) behind the lag; de/dt = v_A - e/τ_a (hook of :mod:`bayesdamper.physics.effects.signals`)."""
+    tau = p[0]
+    if tau <= 0.0:
+        return sig[YP], sig[VP]
+    dz[0] = sig[VP] - z[0] / tau
+    return sig[YP] - z[0], z[0] / tau
+
+
+@njit(cache=True, error_model="numpy")
+def initial(sig, p, z):
+    """Steady trail v_prev τ_a."""
+    z[0] = sig[VP] * p[0]

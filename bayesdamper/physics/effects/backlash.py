@@ -19,7 +19,7 @@ from numba import njit
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.physics.effects.base import Effect, EffectParam
 
-__all__ = ["EFFECT", "backlash_knots"]
+__all__ = ["EFFECT", "backlash_knots", "knots"]
 
 #: Engagement points closer than this to a knot are merged into it [s] (keeps knot times strictly
 #: increasing by far more than the kernel's step-size floor).
@@ -93,3 +93,9 @@ def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
     y0 = float(ky[0])
     yp = y0 if y_piston0 is None else min(max(float(y_piston0), y0 - r), y0 + r)
     return _play_knots(kt, ky, r, yp)
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+def knots(kt: np.ndarray, ky: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The piston knots behind the play ``p[0]`` [m] (knot hook of :mod:`bayesdamper.physics.compose`)."""
+    return backlash_knots(kt, ky, float(p[0]))

@@ -27,7 +27,8 @@ class EffectParam:
     unit : str
         Physical unit.
     lower, upper : float
-        Prior bounds [unit]; the prior is log-uniform when ``log`` (then ``lower > 0``).
+        Prior bounds [unit]; the prior is log-uniform when ``log`` (then ``lower > 0``). A parameter
+        with ``lower < 0`` is signed (an offset, a gain): negative values are admissible.
     default : float
         Value taken when the effect is switched on without this parameter [unit]: a clearly
         visible but plausible value on rig A, or ``off`` for an optional parameter.
@@ -40,10 +41,13 @@ class EffectParam:
     off : float
         Value at which the parameter has no effect [unit] (``inf`` for a stiffness).
     slot : str
-        Name of the slot of the augmented effect vector this parameter fills
-        (:data:`bayesdamper.physics.effect_vector.EFFECT_SLOTS`).
+        Name of the slot of the fixed effect vector this parameter fills
+        (:data:`bayesdamper.physics.effect_vector.EFFECT_SLOTS`); empty for the effects that run only on
+        the composed kernel.
     reciprocal : bool
         The slot holds ``1 / value`` (a stiffness stored as a compliance, so that 0 = off).
+    inf_ok : bool
+        ``inf`` is admissible (an off value: an infinitely fast servo, an infinite span).
     """
 
     name: str
@@ -57,6 +61,7 @@ class EffectParam:
     off: float = 0.0
     slot: str = ""
     reciprocal: bool = False
+    inf_ok: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lower) and math.isfinite(self.upper) and self.lower < self.upper):
@@ -65,8 +70,11 @@ class EffectParam:
             raise SettingsError(f"effect parameter {self.name}: a log-uniform prior needs lower > 0")
         if not (self.lower <= self.default <= self.upper or self.default == self.off):
             raise SettingsError(f"effect parameter {self.name}: default outside the prior and not off")
-        if not self.slot:
-            raise SettingsError(f"effect parameter {self.name}: no slot of the effect vector given")
+
+    @property
+    def signed(self) -> bool:
+        """Negative values are admissible (``lower < 0``)."""
+        return self.lower < 0.0
 
     def to_slot(self, value: float) -> float:
         """Slot value of a parameter value (``1/value`` for a reciprocal parameter, ``1/inf = 0``)."""
@@ -83,7 +91,8 @@ class EffectParam:
     def check(self, value: float, effect: str) -> float:
         """Return ``value`` as a float if it is admissible, else raise a one-line SettingsError.
 
-        Admissible: finite and >= 0; for a reciprocal parameter > 0 (``inf`` = off).
+        Admissible: finite and >= 0 (any finite value for a signed parameter); for a reciprocal parameter
+        > 0 (``inf`` = off).
         """
         try:
             v = float(value)
@@ -93,6 +102,11 @@ class EffectParam:
             if not v > 0:
                 raise SettingsError(f"effect {effect}: {self.name} must be > 0 [{self.unit}] (inf = off), "
                                     f"got {value!r}")
+        elif self.inf_ok and v == math.inf:
+            pass
+        elif self.signed:
+            if not math.isfinite(v):
+                raise SettingsError(f"effect {effect}: {self.name} must be finite [{self.unit}], got {value!r}")
         elif not (math.isfinite(v) and v >= 0):
             raise SettingsError(f"effect {effect}: {self.name} must be finite and >= 0 [{self.unit}], "
                                 f"got {value!r}")
@@ -124,8 +138,13 @@ class Effect:
 
     @property
     def slots(self) -> tuple[str, ...]:
-        """Slots of the augmented effect vector this effect fills, in parameter order."""
+        """Slots of the fixed effect vector this effect fills, in parameter order (empty strings if none)."""
         return tuple(p.slot for p in self.params)
+
+    @property
+    def in_fixed_vector(self) -> bool:
+        """The effect has slots in the fixed effect vector (it can run on the hand-written kernel)."""
+        return all(p.slot for p in self.params)
 
     @property
     def required(self) -> tuple[EffectParam, ...]:

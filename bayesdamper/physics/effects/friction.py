@@ -21,8 +21,9 @@ import numpy as np
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import VP
 
-__all__ = ["EFFECT", "SIGN_VELOCITY_M_S", "friction_force", "friction_force_scalar"]
+__all__ = ["EFFECT", "SIGN_VELOCITY_M_S", "force", "friction_force", "friction_force_scalar"]
 
 #: Velocity scale v_s of the smoothed sign tanh(v / v_s) [m/s]: 1 % of the slowest test speed.
 SIGN_VELOCITY_M_S = 1.0e-5
@@ -72,3 +73,10 @@ def friction_force(v: np.ndarray | float, coulomb_N: float = 0.0, viscous_Ns_per
     if stribeck_N > 0 and stribeck_velocity_m_s > 0:
         level = level + stribeck_N * np.exp(-(v / stribeck_velocity_m_s) ** 2)
     return level * np.tanh(v / SIGN_VELOCITY_M_S) + viscous_Ns_per_m * v
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+@njit(cache=True, error_model="numpy")
+def force(sig, z, p):
+    """Friction force [N] at the piston velocity (hook of :mod:`bayesdamper.physics.effects.signals`)."""
+    return friction_force_scalar(sig[VP], p[0], p[1], p[2], p[3])

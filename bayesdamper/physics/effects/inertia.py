@@ -14,9 +14,12 @@ The filter is linear, so the forward kernel integrates it exactly (closed form p
 
 from __future__ import annotations
 
-from bayesdamper.physics.effects.base import Effect, EffectParam
+from numba import njit
 
-__all__ = ["CORNER_TIME_S", "EFFECT"]
+from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import VA
+
+__all__ = ["CORNER_TIME_S", "EFFECT", "STATES", "STATE_ATOL", "derivatives", "force", "initial"]
 
 #: Time constant of the rig controller's corner rounding of the piston velocity [s].
 CORNER_TIME_S = 0.05
@@ -29,3 +32,27 @@ EFFECT = Effect(
                     "moving mass m between the force transducer and the piston", slot="mass"),
     ),
 )
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+#: State of the composed kernel: the corner-filtered velocity v_f [m/s].
+STATES = ("filtered_velocity_m_s",)
+STATE_ATOL = (1.0e-12,)
+
+
+@njit(cache=True, error_model="numpy")
+def derivatives(sig, z, p, dz):
+    """dv_f/dt = (v_A - v_f) / CORNER_TIME_S."""
+    dz[0] = (sig[VA] - z[0]) / CORNER_TIME_S
+
+
+@njit(cache=True, error_model="numpy")
+def force(sig, z, p):
+    """m a_P [N]."""
+    return p[0] * (sig[VA] - z[0]) / CORNER_TIME_S
+
+
+@njit(cache=True, error_model="numpy")
+def initial(sig, p, z):
+    """Steady filter: v_f = v_prev."""
+    z[0] = sig[VA]

@@ -16,7 +16,7 @@ import math
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
 
-__all__ = ["EFFECT"]
+__all__ = ["EFFECT", "compliance"]
 
 EFFECT = Effect(
     name="series_compliance",
@@ -27,3 +27,9 @@ EFFECT = Effect(
                     slot="compliance", reciprocal=True),
     ),
 )
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+def compliance(p) -> float:
+    """Series compliance 1/k_s [m/N] (0 for an infinite stiffness)."""
+    return 0.0 if math.isinf(p[0]) else 1.0 / float(p[0])

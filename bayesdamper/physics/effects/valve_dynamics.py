@@ -19,8 +19,9 @@ import math
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import DP, Q
 
-__all__ = ["EFFECT", "MIN_OPENING", "steady_opening"]
+__all__ = ["EFFECT", "MIN_OPENING", "STATES", "flow", "initial", "state_atol", "steady_opening"]
 
 #: Floor of the steady opening x_ss [-], so that flow never stops.
 MIN_OPENING = 1.0e-3
@@ -49,3 +50,33 @@ def steady_opening(dp: float, p_v: float) -> tuple[float, float]:
     if x < MIN_OPENING:
         return MIN_OPENING, 0.0
     return x, (e / p_v if dp >= 0.0 else -e / p_v)
+
+
+# ----------------------------------------------------------------------------- composed-kernel hooks
+#: State of the composed kernel: the opening x [-].
+STATES = ("opening",)
+
+
+@njit(cache=True, error_model="numpy")
+def flow(sig, z, p, dz):
+    """Q = x Q_O (τ_v > 0) or x_ss Q_O (τ_v = 0); dx/dt (hook of :mod:`bayesdamper.physics.effects.signals`)."""
+    tau, p_v = p[0], p[1]
+    if p_v <= 0.0:
+        return sig[Q]
+    xs = steady_opening(sig[DP], p_v)[0]
+    if tau > 0.0:
+        dz[0] = (xs - z[0]) / tau
+        return sig[Q] * z[0]
+    return sig[Q] * xs
+
+
+@njit(cache=True, error_model="numpy")
+def initial(sig, p, z):
+    """x = x_ss(Δp0)."""
+    z[0] = steady_opening(sig[DP], p[1])[0] if p[1] > 0.0 else 1.0
+
+
+@njit(cache=True, error_model="numpy")
+def state_atol(p, atol, out):
+    """Tolerance of x: that of Δp over p_v (as the hand-written kernel)."""
+    out[0] = atol / p[1] if p[1] > 0.0 else 1.0

@@ -1,0 +1,325 @@
+"""Compose any named effects into one compiled forward kernel of eq. (7).
+
+An effect is one module of :mod:`bayesdamper.physics.effects`: its ``EFFECT`` (parameters with units and
+priors), its extra states (``STATES``, ``STATE_ATOL``) and numba hooks saying where it acts —
+displacement path, flow path, chamber pressures (compressibility), force output — with the protocol of
+:mod:`bayesdamper.physics.effects.signals`. For a combination of effects this module writes the model
+half of a kernel (the right-hand side, the force, the initial state) that calls exactly those hooks,
+appends it to the solver half (:mod:`bayesdamper.physics.composed_template`), and imports the result from
+the kernel cache, so numba compiles one kernel per combination and caches it on disk. Adding an effect
+is adding a module: nothing here names an effect.
+
+Order of evaluation at time t (the signals of :mod:`~bayesdamper.physics.effects.signals`):
+
+1. y_A, v_A from the piecewise-linear measured displacement; the displacement-path hooks in registry
+   order; the series compliance: y_P = y_D - c A_P Δp;
+2. Q_O(Δp) of eq. (8), then the flow-path hooks;
+3. absolute pressures from a ``pressures`` hook (at most one effect) with B(p_i) of eq. (3), else eq. (6);
+   extra chamber inflows q_1, q_2;
+4. dΔp/dt = [B_1/V_1 (A_P v_D - Q + q_1) + B_2/V_2 (A_P v_D - Q - q_2)] / (1 + K A_P^2 c),
+   K = B_1/V_1 + B_2/V_2, v_P = v_D - c A_P dΔp/dt (with every effect off this is eq. (7));
+5. the effects' state derivatives; the force F = A_P Δp + the force hooks.
+
+The kernel cache is ``$BAYESDAMPER_KERNEL_CACHE`` or ``~/.cache/bayesdamper/kernels`` (a temporary folder
+if that is not writable); a file's name is the hash of everything its text depends on.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.util
+import inspect
+import math
+import os
+import sys
+import tempfile
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from bayesdamper.core.errors import SettingsError
+from bayesdamper.physics import composed_template
+from bayesdamper.physics.effects import EFFECT_MODULES, complete_effects
+from bayesdamper.physics.effects import signals as _signals
+
+__all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "solve_composed"]
+
+_PREFIX = "bayesdamper_kernel_"
+
+
+@dataclass(frozen=True, eq=False)
+class ComposedEffects:
+    """A combination of effects with parameter values, ready for the composed kernel.
+
+    Attributes
+    ----------
+    names : tuple of str
+        The effects, in registry order.
+    values : ndarray
+        Their parameters concatenated in that order (each effect's parameter order), SI units.
+    """
+
+    names: tuple[str, ...]
+    values: np.ndarray
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        """``{effect: {param: value}}``."""
+        out, i = {}, 0
+        for name in self.names:
+            params = EFFECT_MODULES[name].EFFECT.params
+            out[name] = {p.name: float(v) for p, v in zip(params, self.values[i:i + len(params)], strict=True)}
+            i += len(params)
+        return out
+
+    def transform_knots(self, kt: np.ndarray, ky: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply the effects' knot transforms (``knots`` hooks, e.g. backlash) to the displacement knots."""
+        for name, p in self._slices():
+            mod = EFFECT_MODULES[name]
+            if hasattr(mod, "knots"):
+                kt, ky = mod.knots(kt, ky, p)
+        return kt, ky
+
+    def compliance(self) -> float:
+        """Total series compliance [m/N] of the effects' ``compliance`` hooks."""
+        return float(sum(EFFECT_MODULES[n].compliance(p) for n, p in self._slices()
+                         if hasattr(EFFECT_MODULES[n], "compliance")))
+
+    def _slices(self):
+        i = 0
+        for name in self.names:
+            n = len(EFFECT_MODULES[name].EFFECT.params)
+            yield name, self.values[i:i + n]
+            i += n
+
+
+def compose(effects: Mapping[str, Mapping[str, float] | None] | None) -> ComposedEffects:
+    """:class:`ComposedEffects` of ``{effect: {param: value}}`` (defaults filled, values checked)."""
+    full = complete_effects(effects)
+    names = tuple(n for n in EFFECT_MODULES if n in full)
+    vals = [full[n][p.name] for n in names for p in EFFECT_MODULES[n].EFFECT.params]
+    return ComposedEffects(names, np.array(vals, dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------- code generation
+def _layout(names: tuple[str, ...]):
+    """Per effect: (alias, module, state offset, n states, parameter start, parameter end)."""
+    rows, o, a = [], 1, 0
+    for i, name in enumerate(names):
+        mod = EFFECT_MODULES[name]
+        ns = len(getattr(mod, "STATES", ()))
+        npar = len(mod.EFFECT.params)
+        rows.append((f"_e{i}", mod, o, ns, a, a + npar))
+        o += ns
+        a += npar
+    return rows, o
+
+
+def kernel_source(names: tuple[str, ...]) -> str:
+    """Python source of the composed kernel of the effects ``names`` (in registry order)."""
+    rows, n_states = _layout(tuple(names))
+    pressure_hooks = [r for r in rows if hasattr(r[1], "pressures")]
+    if len(pressure_hooks) > 1:
+        raise SettingsError("effects " + ", ".join(r[1].EFFECT.name for r in pressure_hooks)
+                            + " all set the chamber pressures: name at most one of them")
+
+    def z(r):
+        return f"s[{r[2]}:{r[2] + r[3]}]"
+
+    def dz(r, arr="ds"):
+        return f"{arr}[{r[2]}:{r[2] + r[3]}]"
+
+    def p(r):
+        return f"prm[{r[4]}:{r[5]}]"
+
+    disp = [r for r in rows if hasattr(r[1], "displacement")]
+    lines = ["", "", "# " + "-" * 77 + " generated model half",
+             "from bayesdamper.physics.compressibility import bulk_modulus_scalar as _bulk",
+             "from bayesdamper.physics.orifice import orifice_flow as _orifice",
+             "from bayesdamper.physics.effects.signals import (DDP, DP, DP1, DP2, P1, P2, PRESSURE_FLOOR_PA, Q,",
+             "                                               QO, T, V1, V2, VA, VP, YA, YP)"]
+    for r in rows:
+        lines.append(f"import {r[1].__name__} as {r[0]}")
+    lines += ["", f"NS = {n_states}", "", "",
+              "@njit(cache=True, error_model=\"numpy\")",
+              "def _rhs(t, s, ds, sig, prm, base, ts, ys, va):",
+              "    ya = ys + va * (t - ts)",
+              "    sig[T] = t",
+              "    sig[YA] = ya",
+              "    sig[VA] = va",
+              "    sig[YP] = ya",
+              "    sig[VP] = va",
+              "    for i in range(NS):",
+              "        ds[i] = 0.0"]
+    for r in disp:
+        lines += [f"    y, v = {r[0]}.displacement(sig, {z(r)}, {p(r)}, {dz(r)})",
+                  "    sig[YP] = y", "    sig[VP] = v"]
+    lines += ["    dp = s[0]",
+              "    sig[DP] = dp",
+              "    area = base[B_AREA]",
+              "    comp = base[B_COMP]",
+              "    y = sig[YP] - comp * area * dp",
+              "    sig[YP] = y",
+              "    vol1 = base[B_V01] - area * y",
+              "    vol2 = base[B_V02] + area * y",
+              "    if not (vol1 > 0.0 and vol2 > 0.0):",
+              "        return False",
+              "    sig[V1] = vol1",
+              "    sig[V2] = vol2",
+              "    qo = _orifice(dp, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
+              "    sig[QO] = qo",
+              "    sig[Q] = qo"]
+    for r in rows:
+        if hasattr(r[1], "flow"):
+            lines.append(f"    sig[Q] = {r[0]}.flow(sig, {z(r)}, {p(r)}, {dz(r)})")
+    lines += ["    q = sig[Q]",
+              "    b0 = base[B_B0]",
+              "    alpha = base[B_ALPHA]",
+              "    p_r = base[B_PR]"]
+    if pressure_hooks:
+        r = pressure_hooks[0]
+        lines += [f"    p1, p2 = {r[0]}.pressures(sig, {z(r)}, {p(r)})",
+                  "    sig[P1] = p1",
+                  "    sig[P2] = p2",
+                  "    b1 = _bulk(max(p1, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
+                  "    b2 = _bulk(max(p2, PRESSURE_FLOOR_PA), b0, alpha, p_r)"]
+    else:
+        lines += ["    loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
+                  "    unloaded = _bulk(p_r, b0, alpha, p_r)",
+                  "    b1 = loaded if dp >= 0.0 else unloaded",
+                  "    b2 = unloaded if dp >= 0.0 else loaded"]
+    lines += ["    q1 = 0.0", "    q2 = 0.0"]
+    for r in rows:
+        if hasattr(r[1], "chamber_flows"):
+            lines += [f"    a1, a2 = {r[0]}.chamber_flows(sig, {z(r)}, {p(r)})", "    q1 += a1", "    q2 += a2"]
+    lines += ["    g1 = b1 / vol1",
+              "    g2 = b2 / vol2",
+              "    vd = sig[VP]",
+              "    ddp = ((g1 * (area * vd - q + q1) + g2 * (area * vd - q - q2))",
+              "           / (1.0 + (g1 + g2) * area * area * comp))",
+              "    vp = vd - comp * area * ddp",
+              "    sig[DDP] = ddp",
+              "    sig[VP] = vp",
+              "    sig[DP1] = g1 * (area * vp - q + q1)",
+              "    sig[DP2] = g2 * (-area * vp + q + q2)",
+              "    ds[0] = ddp"]
+    for r in rows:
+        if hasattr(r[1], "derivatives"):
+            lines.append(f"    {r[0]}.derivatives(sig, {z(r)}, {p(r)}, {dz(r)})")
+    lines += ["    return math.isfinite(ddp)", "", "",
+              "@njit(cache=True, error_model=\"numpy\")",
+              "def _force(sig, s, prm, base):",
+              "    f = base[B_AREA] * s[0]"]
+    for r in rows:
+        if hasattr(r[1], "force"):
+            lines.append(f"    f += {r[0]}.force(sig, {z(r)}, {p(r)})")
+    lines += ["    return f", "", "",
+              "@njit(cache=True, error_model=\"numpy\")",
+              "def _init(t0, ya0, v_prev, dp0, sig, s, prm, base):",
+              "    for i in range(NS):",
+              "        s[i] = 0.0",
+              "    s[0] = dp0",
+              "    scratch = np.zeros(NS)",
+              "    sig[T] = t0",
+              "    sig[YA] = ya0",
+              "    sig[VA] = v_prev",
+              "    sig[YP] = ya0",
+              "    sig[VP] = v_prev",
+              "    sig[DP] = dp0"]
+    for r in disp:
+        if hasattr(r[1], "initial"):
+            lines.append(f"    {r[0]}.initial(sig, {p(r)}, {z(r)})")
+        lines += [f"    y, v = {r[0]}.displacement(sig, {z(r)}, {p(r)}, {dz(r, 'scratch')})",
+                  "    sig[YP] = y", "    sig[VP] = v"]
+    lines += ["    sig[YP] = sig[YP] - base[B_COMP] * base[B_AREA] * dp0",
+              "    qo = _orifice(dp0, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
+              "    sig[QO] = qo",
+              "    sig[Q] = qo"]
+    for r in rows:
+        if hasattr(r[1], "initial") and r not in disp:
+            lines.append(f"    {r[0]}.initial(sig, {p(r)}, {z(r)})")
+    lines += ["    for i in range(NS):",
+              "        if not math.isfinite(s[i]):",
+              "            return False",
+              "    return True", "", "",
+              "@njit(cache=True, error_model=\"numpy\")",
+              "def _atol(prm, atol, out):"]
+    body = []
+    for r in rows:
+        if r[3] == 0:
+            continue
+        if hasattr(r[1], "state_atol"):
+            body.append(f"    {r[0]}.state_atol({p(r)}, atol, out[{r[2]}:{r[2] + r[3]}])")
+        else:
+            consts = tuple(float(c) for c in r[1].STATE_ATOL)
+            if len(consts) != r[3]:
+                raise SettingsError(f"effect {r[1].EFFECT.name}: STATE_ATOL needs one value per state")
+            body += [f"    out[{r[2] + i}] = {c!r}" for i, c in enumerate(consts)]
+    lines += body or ["    return"]
+    return inspect.getsource(composed_template) + "\n".join(lines) + "\n"
+
+
+def _cache_dir() -> Path:
+    env = os.environ.get("BAYESDAMPER_KERNEL_CACHE")
+    for cand in ([Path(env)] if env else []) + [Path.home() / ".cache" / "bayesdamper" / "kernels",
+                                                 Path(tempfile.gettempdir()) / "bayesdamper-kernels"]:
+        try:
+            cand.mkdir(parents=True, exist_ok=True)
+            if os.access(cand, os.W_OK):
+                return cand
+        except OSError:
+            continue
+    raise SettingsError("no writable folder for the composed kernels (set BAYESDAMPER_KERNEL_CACHE)")
+
+
+@functools.cache
+def kernel(names: tuple[str, ...]):
+    """The imported kernel module of the effects ``names`` (written to the cache on first use)."""
+    src = kernel_source(names)
+    digest = hashlib.sha256()
+    digest.update(src.encode())
+    for name in names:
+        digest.update(Path(inspect.getfile(EFFECT_MODULES[name])).read_bytes())
+    for mod in (_signals,):
+        digest.update(Path(inspect.getfile(mod)).read_bytes())
+    digest.update(numba.__version__.encode())
+    mod_name = _PREFIX + digest.hexdigest()[:20]
+    if mod_name in sys.modules:
+        return sys.modules[mod_name]
+    folder = _cache_dir()
+    path = folder / f"{mod_name}.py"
+    if not path.exists() or path.read_text() != src:
+        fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(src)
+        os.replace(tmp, path)
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[mod_name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndarray, knot_y: np.ndarray,
+                   t0: float, dp0: float, v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float,
+                   rtol: float, atol: float, *, from_force: bool = False) -> tuple[np.ndarray, int]:
+    """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
+
+    ``knot_t``, ``knot_y`` are the measured displacement's knots, already through
+    :meth:`ComposedEffects.transform_knots`; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
+    ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
+    (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`).
+    """
+    mod = kernel(composed.names)
+    comp = composed.compliance()
+    base = np.array([damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2,
+                     damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
+    if not (np.all(np.isfinite(base)) and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
+        return np.full(np.shape(t_out), np.nan), 5
+    return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), np.ascontiguousarray(knot_t, dtype=float),
+                              np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
+                              base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
+                              bool(from_force))

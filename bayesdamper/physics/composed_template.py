@@ -1,0 +1,322 @@
+# ruff: noqa: F821
+"""The solver half of a composed kernel: :mod:`bayesdamper.physics.compose` appends the model half.
+
+This file is never imported on its own. :func:`bayesdamper.physics.compose.kernel` writes its text,
+followed by generated definitions of ``NS`` (number of states), ``_rhs``, ``_force``, ``_init`` and
+``_atol`` for one combination of effects, into a module of the kernel cache and imports that, so
+numba compiles (and caches on disk) one kernel per combination.
+
+Method: RODAS4 (Hairer & Wanner; the coefficients, step control and dense output of
+:mod:`bayesdamper.physics.rodas`) on the state vector (Δp, effect states...) with a forward-difference
+Jacobian and time derivative, LU with partial pivoting once per step; no step across a knot of the
+piecewise-linear displacement, and a fresh initial step at every knot. The force at an output time is
+the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from bayesdamper.physics.effects.signals import N_SIGNALS
+from bayesdamper.physics.rodas import (
+    _GAMMA,
+    STATUS_BAD_INPUT,
+    STATUS_MAX_STEPS,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_STEP_UNDERFLOW,
+    dense_coefficients,
+    dense_value,
+    predictive_step,
+    stage_point,
+    stage_rhs,
+    stage_time,
+    step_factor,
+)
+
+#: Maximum number of accepted steps of one call.
+MAX_STEPS = 100_000
+# layout of the ``base`` vector
+B_AREA, B_V01, B_V02, B_B0, B_ALPHA, B_PR, B_FL0, B_FL1, B_FL2, B_FL3, B_COMP = range(11)
+N_BASE = 11
+
+
+@njit(cache=True, error_model="numpy")
+def _lu(m, piv):
+    """In-place LU factorisation with partial pivoting; False if singular."""
+    n = m.shape[0]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(m[i, k]) > abs(m[p, k]):
+                p = i
+        piv[k] = p
+        if m[p, k] == 0.0 or not math.isfinite(m[p, k]):
+            return False
+        if p != k:
+            for j in range(n):
+                tmp = m[k, j]
+                m[k, j] = m[p, j]
+                m[p, j] = tmp
+        for i in range(k + 1, n):
+            m[i, k] /= m[k, k]
+            for j in range(k + 1, n):
+                m[i, j] -= m[i, k] * m[k, j]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _lu_solve(m, piv, b):
+    """Solve in place with the factors of :func:`_lu`."""
+    n = m.shape[0]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            tmp = b[k]
+            b[k] = b[p]
+            b[p] = tmp
+    for i in range(n):
+        for j in range(i):
+            b[i] -= m[i, j] * b[j]
+    for i in range(n - 1, -1, -1):
+        for j in range(i + 1, n):
+            b[i] -= m[i, j] * b[j]
+        b[i] /= m[i, i]
+
+
+@njit(cache=True, error_model="numpy")
+def _err_norm(v, x, xn, sc_a, rtol):
+    acc = 0.0
+    n = v.shape[0]
+    for i in range(n):
+        e = v[i] / (sc_a[i] + rtol * max(abs(x[i]), abs(xn[i])))
+        acc += e * e
+    return math.sqrt(acc / n)
+
+
+@njit(cache=True, error_model="numpy")
+def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force):
+    """Force of the composed model at the sample times (module docstring).
+
+    Parameters
+    ----------
+    t_out : ndarray (n_t,)
+        Non-decreasing output times [s] within ``[t0, knot_t[-1]]``.
+    knot_t, knot_y : ndarray (n_knots,)
+        Strictly increasing knot times [s] and the measured displacement there [m].
+    t0, dp0, v_prev : float
+        Start time [s], Δp there [Pa] and the velocity just before it [m/s].
+    from_force : bool
+        ``dp0`` is the measured force at t0 [N] instead: Δp0 is solved so that the model's force in the
+        steady state before t0 (velocity ``v_prev``) equals it (friction, offsets... included).
+    base : ndarray (11,)
+        A_P, V_01, V_02, B_0, α_V, p_R, C_L12, C_Q12, C_L21, C_Q21, total series compliance [m/N].
+    prm : ndarray
+        The named effects' parameters, concatenated in the kernel's order.
+    rtol, atol : float
+        Relative tolerance [-] and absolute tolerance of Δp [Pa] (effect states: their ``_atol``).
+
+    Returns
+    -------
+    (force [N] at t_out, status) with the status codes of :mod:`bayesdamper.physics.rodas`.
+    """
+    n_t = t_out.shape[0]
+    out = np.full(n_t, np.nan)
+    n_k = knot_t.shape[0]
+    if n_t == 0:
+        return out, STATUS_OK
+    if n_k < 2 or not (math.isfinite(t0) and knot_t[0] <= t0 <= t_out[0] and t_out[n_t - 1] <= knot_t[n_k - 1]):
+        return out, STATUS_BAD_INPUT
+    for j in range(prm.shape[0]):
+        if not math.isfinite(prm[j]) and not prm[j] == math.inf:
+            return out, STATUS_BAD_INPUT
+    ns = NS
+    sig = np.full(N_SIGNALS, np.nan)
+    x = np.zeros(ns)
+    x_new = np.zeros(ns)
+    f0 = np.zeros(ns)
+    f1 = np.zeros(ns)
+    ft = np.zeros(ns)
+    xp = np.zeros(ns)
+    jac = np.zeros((ns, ns))
+    mat = np.zeros((ns, ns))
+    piv = np.zeros(ns, dtype=np.int64)
+    ks = np.zeros((6, ns))
+    r = np.zeros(ns)
+    sc_a = np.zeros(ns)
+    xd = np.zeros(ns)
+    sc_a[0] = atol
+    _atol(prm, atol, sc_a)
+    t_end = t_out[n_t - 1]
+    k0 = 0
+    while k0 < n_k - 2 and knot_t[k0 + 1] <= t0:
+        k0 += 1
+    va0 = (knot_y[k0 + 1] - knot_y[k0]) / (knot_t[k0 + 1] - knot_t[k0])
+    ya0 = knot_y[k0] + va0 * (t0 - knot_t[k0])
+    if from_force:  # Newton on Δp0 with the slope A_P of the hydraulic force
+        f_target = dp0
+        dp0 = f_target / base[B_AREA]
+        for _ in range(6):
+            if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base)
+                    and _rhs(t0, x, f0, sig, prm, base, t0, ya0, v_prev)):
+                return out, STATUS_NONFINITE
+            dp0 -= (_force(sig, x, prm, base) - f_target) / base[B_AREA]
+    if not (math.isfinite(dp0) and _init(t0, ya0, v_prev, dp0, sig, x, prm, base)):
+        return out, STATUS_NONFINITE
+    i_out = 0
+    n_steps = 0
+    for k in range(k0, n_k - 1):
+        ts = max(knot_t[k], t0)
+        tk1 = knot_t[k + 1]
+        va = (knot_y[k + 1] - knot_y[k]) / (tk1 - knot_t[k])
+        ys = knot_y[k] + va * (ts - knot_t[k])
+        while i_out < n_t and t_out[i_out] <= ts:
+            if not _rhs(ts, x, f0, sig, prm, base, ts, ys, va):
+                return out, STATUS_NONFINITE
+            out[i_out] = _force(sig, x, prm, base)
+            i_out += 1
+        if i_out >= n_t:
+            break
+        tb = min(tk1, t_end)
+        t = ts
+        # Hairer-Wanner initial step
+        if not _rhs(t, x, f0, sig, prm, base, ts, ys, va):
+            return out, STATUS_NONFINITE
+        d0 = 0.0
+        d1 = 0.0
+        for i in range(ns):
+            sc = sc_a[i] + rtol * abs(x[i])
+            d0 += (x[i] / sc) ** 2
+            d1 += (f0[i] / sc) ** 2
+        d0 = math.sqrt(d0 / ns)
+        d1 = math.sqrt(d1 / ns)
+        h0 = min(tb - t, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
+        for i in range(ns):
+            xp[i] = x[i] + h0 * f0[i]
+        ok = _rhs(t + h0, xp, f1, sig, prm, base, ts, ys, va)
+        d2 = 0.0
+        for i in range(ns):
+            d2 += ((f1[i] - f0[i]) / (sc_a[i] + rtol * abs(x[i]))) ** 2
+        dmax = max(d1, math.sqrt(d2 / ns) / h0)
+        if not ok or not math.isfinite(dmax):
+            h = h0
+        else:
+            h = min(100.0 * h0, max(1e-6, h0 * 1e-3) if dmax <= 1e-15 else (0.01 / dmax) ** 0.2, tb - t)
+        n_acc_seg = 0
+        h_acc = 0.0
+        err_acc = 1.0
+        reject = False
+        while t < tb:
+            if n_steps >= MAX_STEPS:
+                return out, STATUS_MAX_STEPS
+            last = False
+            if t + 1.0001 * h >= tb:
+                h = tb - t
+                last = True
+            # f, forward-difference Jacobian and time derivative at (t, x)
+            if not _rhs(t, x, f0, sig, prm, base, ts, ys, va):
+                return out, STATUS_NONFINITE
+            for j in range(ns):
+                dj = 1.49e-8 * max(abs(x[j]), sc_a[j] * 1e3)
+                for i in range(ns):
+                    xp[i] = x[i]
+                xp[j] = x[j] + dj
+                if not _rhs(t, xp, f1, sig, prm, base, ts, ys, va):
+                    return out, STATUS_NONFINITE
+                for i in range(ns):
+                    jac[i, j] = (f1[i] - f0[i]) / dj
+            dt = 1.49e-8 * max(abs(t), 1.0)
+            if not _rhs(t + dt, x, f1, sig, prm, base, ts, ys, va):
+                return out, STATUS_NONFINITE
+            for i in range(ns):
+                ft[i] = (f1[i] - f0[i]) / dt
+                if not (math.isfinite(f0[i]) and math.isfinite(ft[i])):
+                    return out, STATUS_NONFINITE
+            while True:  # attempts from (t, x)
+                if h <= 1e-14 * max(1.0, abs(t)):
+                    return out, STATUS_STEP_UNDERFLOW
+                g = 1.0 / (h * _GAMMA)
+                for i in range(ns):
+                    for j in range(ns):
+                        mat[i, j] = -jac[i, j]
+                    mat[i, i] += g
+                if not _lu(mat, piv):
+                    h *= 0.5
+                    last = False
+                    continue
+                good = True
+                for st in range(1, 7):
+                    if st == 1:
+                        for i in range(ns):
+                            r[i] = stage_rhs(1, f0[i], h, ft[i], 0.0, 0.0, 0.0, 0.0, 0.0)
+                    else:
+                        ti = stage_time(st, t, h)
+                        for i in range(ns):
+                            if st <= 5:
+                                xp[i] = stage_point(st, x[i], ks[0, i], ks[1, i] if st > 2 else 0.0,
+                                                    ks[2, i] if st > 3 else 0.0, ks[3, i] if st > 4 else 0.0)
+                            else:
+                                xp[i] = x_new[i]
+                        if not _rhs(ti, xp, f1, sig, prm, base, ts, ys, va):
+                            good = False
+                            break
+                        for i in range(ns):
+                            r[i] = stage_rhs(st, f1[i], h, ft[i], ks[0, i], ks[1, i], ks[2, i], ks[3, i],
+                                             ks[4, i])
+                    _lu_solve(mat, piv, r)
+                    for i in range(ns):
+                        ks[st - 1, i] = r[i]
+                    if st == 5:
+                        for i in range(ns):
+                            x_new[i] = xp[i] + ks[4, i]
+                if good:
+                    for i in range(ns):
+                        x_new[i] = x_new[i] + ks[5, i]
+                    err = _err_norm(ks[5], x, x_new, sc_a, rtol)
+                    for i in range(ns):
+                        if not math.isfinite(x_new[i]):
+                            good = False
+                    good = good and math.isfinite(err)
+                if not good:
+                    h *= 0.2
+                    last = False
+                    reject = True
+                    continue
+                fac = step_factor(err)
+                h_new = h / fac
+                if err > 1.0:
+                    reject = True
+                    last = False
+                    h = h_new
+                    continue
+                n_steps += 1
+                n_acc_seg += 1
+                if n_acc_seg > 1:
+                    h_new = predictive_step(h, fac, err, h_acc, err_acc)
+                h_acc = h
+                err_acc = max(0.01, err)
+                t_new = tb if last else t + h
+                while i_out < n_t and t_out[i_out] <= t_new:
+                    s = (t_out[i_out] - t) / h
+                    for i in range(ns):
+                        cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
+                        xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
+                    if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va):
+                        return out, STATUS_NONFINITE
+                    out[i_out] = _force(sig, xd, prm, base)
+                    i_out += 1
+                for i in range(ns):
+                    x[i] = x_new[i]
+                t = t_new
+                if reject:
+                    h_new = min(h_new, h)
+                reject = False
+                h = h_new
+                break
+        if i_out >= n_t:
+            break
+    for i in range(n_t):
+        if not math.isfinite(out[i]):
+            return out, STATUS_NONFINITE
+    return out, STATUS_OK
