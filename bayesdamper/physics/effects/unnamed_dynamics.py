@@ -1,0 +1,100 @@
+"""Unnamed dynamics: a generic second-order filter of a model signal, added where it fits best.
+
+For a residual whose form no named effect holds, the diagnosis (part 1,
+:mod:`bayesdamper.diagnosis.sysid`) identifies a driver, a static law and poles; this effect adds them
+to the model so they are fitted with intervals like any other effect::
+
+    d²w/dt² + 2 ζ ω dw/dt + ω² w = ω² L(u),    ω = 2π f
+
+u is the driver (``driver``: 0 Δp [Pa], 1 orifice flow Q_O [m^3/s], 2 piston displacement y_P [m],
+3 piston velocity v_P [m/s]); L the static law (``law``: 0 linear, 1 |u|, 2 dead zone
+sign(u) max(|u| - θ, 0), 3 smooth sign tanh(u/θ)); the output g w acts on the force (``placement`` 0:
+F += g w [N]) or on the flow path (1: Q += g w [m^3/s]). The filter has unit DC gain, so g is the
+static gain [output unit per driver unit] and the structure parameters (driver, law, placement) are
+fixed by the diagnosis, not fitted. It starts at rest at its input: w = L(u(t0)), dw/dt = 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import DP, QO, VP, YP, Q
+
+__all__ = ["DRIVERS", "EFFECT", "LAWS", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "initial",
+           "state_atol"]
+
+#: Codes of the structure parameters (names used in reports).
+DRIVERS = ("dp", "q", "y", "v")
+LAWS = ("linear", "abs", "deadzone", "sign")
+PLACEMENTS = ("force", "flow")
+#: States: filter output w and its rate (driver units, per second).
+STATES = ("w", "w_rate")
+
+EFFECT = Effect(
+    name="unnamed_dynamics",
+    description="dynamics no named effect holds: a second-order filter of a model signal, identified from the "
+                "residual",
+    params=(
+        EffectParam("gain", "output/driver", -1.0e12, 1.0e12, 0.0, False, "static gain g of the filter"),
+        EffectParam("natural_frequency_Hz", "Hz", 0.05, 200.0, 1.7, True, "natural frequency f"),
+        EffectParam("damping_ratio", "-", 0.01, 3.0, 0.25, True, "damping ratio ζ"),
+        EffectParam("threshold", "driver unit", 0.0, 1.0e7, 0.0, False, "dead-zone or sign threshold θ",
+                    optional=True),
+        EffectParam("driver", "-", 0.0, 3.0, 0.0, False, "driver code (0 Δp, 1 Q_O, 2 y_P, 3 v_P)", optional=True),
+        EffectParam("law", "-", 0.0, 3.0, 0.0, False, "law code (0 linear, 1 |u|, 2 dead zone, 3 sign)",
+                    optional=True),
+        EffectParam("placement", "-", 0.0, 1.0, 0.0, False, "0 force output, 1 flow path", optional=True),
+    ),
+)
+
+
+@njit(cache=True, error_model="numpy")
+def _input(sig, p):
+    d = int(p[4])
+    u = sig[DP] if d == 0 else (sig[QO] if d == 1 else (sig[YP] if d == 2 else sig[VP]))
+    law = int(p[5])
+    if law == 1:
+        return abs(u)
+    if law == 2:
+        return math.copysign(max(abs(u) - p[3], 0.0), u)
+    if law == 3:
+        return math.tanh(u / p[3]) if p[3] > 0.0 else (1.0 if u > 0.0 else (-1.0 if u < 0.0 else 0.0))
+    return u
+
+
+@njit(cache=True, error_model="numpy")
+def flow(sig, z, p, dz):
+    """Q + g w on the flow path (placement 1)."""
+    return sig[Q] + p[0] * z[0] if int(p[6]) == 1 else sig[Q]
+
+
+@njit(cache=True, error_model="numpy")
+def force(sig, z, p):
+    """g w on the force (placement 0)."""
+    return p[0] * z[0] if int(p[6]) == 0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def derivatives(sig, z, p, dz):
+    """The filter's state derivatives."""
+    w = 2.0 * math.pi * p[1]
+    dz[0] = z[1]
+    dz[1] = w * w * (_input(sig, p) - z[0]) - 2.0 * p[2] * w * z[1]
+
+
+@njit(cache=True, error_model="numpy")
+def initial(sig, p, z):
+    """At rest at its input."""
+    z[0] = _input(sig, p)
+    z[1] = 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def state_atol(p, atol, out):
+    """Tolerances in the driver's unit: Δp's for Δp, 1e-13 m^3/s, 1e-12 m, 1e-10 m/s."""
+    d = int(p[4])
+    out[0] = atol if d == 0 else (1.0e-13 if d == 1 else (1.0e-12 if d == 2 else 1.0e-10))
+    out[1] = out[0] * max(2.0 * math.pi * p[1], 1.0)
