@@ -17,6 +17,14 @@ Model, SI units throughout. At time t, with the measured displacement y_A(t) and
 State vector: Δp first, then the effects' states in the canonical order of :data:`EFFECT_PARAMS`
 (see :func:`state_names`). Inputs are the objects of ``independent.py`` (``displacement``, ``velocity``,
 ``breakpoints``); the Radau integration restarts at every input breakpoint, as :func:`independent.simulate`.
+
+Choices where the spec leaves room:
+
+* the servo is integrated as the tracking error e = y_P - y_A (same equations; ω^2 (y_A - y_P) of two
+  nearly equal positions loses ~1e-7 m/s^2 to rounding at 1e5 Hz and stalls Radau); ``y_p`` is reported;
+* the unnamed filter's driver 1 is the bare eq. (8) flow Q_O(Δp), before the poppet scaling and the leak;
+* without the servo, force terms at a sample time use the right-continuous v_A (``inp.velocity``), like
+  the Coulomb term of :func:`independent.simulate`; the initial unnamed driver uses v_A(t0) likewise.
 """
 
 from __future__ import annotations

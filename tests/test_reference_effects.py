@@ -1,0 +1,281 @@
+"""Self-checks of the independent effect simulator (tests/reference_effects.py), without bayesdamper.
+
+Rig-A (tests/independent.py) on a 1 mm/s, 2 mm triangle: each ramp lasts 2 s. The plateau checks use a
+nearly gas-free fluid (α_V = 1000, p_R = 150 kPa: Δp relaxes with τ < 50 ms), so the last 0.5 s of the
+rising ramp (> 30 τ after the reversal) is a steady plateau; the other checks use α_V = 60 (τ up to ~0.5 s).
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from independent import (
+    PAPER_FLOW,
+    RIG_A,
+    SMALL,
+    SMALL_FLOW,
+    orifice_flow,
+    quasi_static_dp,
+    simulate,
+    sine_input,
+    triangle_input,
+)
+from reference_effects import EFFECT_PARAMS, resolve_effects, simulate_effects, state_names
+from scipy.optimize import brentq
+
+ALPHA_V, P_R = 60.0, 1.5e5
+ALPHA_STIFF = 1e3  # plateau checks: B(p_R + Δp) ~ 1.2 GPa at 860 kPa, τ = V / (B dQ/dΔp) ~ 45 ms
+SPEED, AMPLITUDE, T_FIRST = 1e-3, 2e-3, 0.2537  # [m/s], [m], [s]: the first step off the 5 ms grid
+INP = triangle_input(SPEED, AMPLITUDE, 0.0, T_FIRST, cycles=0.5)  # up 2 s, down 2 s, then rest
+T = np.arange(0.0, 4.5, 1 / 200)
+RAMP_UP = (T > T_FIRST + 1.5) & (T < T_FIRST + 2.0)  # last 0.5 s of the rising ramp (> 7 relaxation times)
+AREA = RIG_A["area"]
+
+#: Same equations, same Radau, same tolerances (rtol 1e-10): only the step sequences may differ.
+NO_EFFECT_RTOL = 1e-6
+#: An effect at its "off" value: the extra states change the error norm, not the equations (rtol 1e-10).
+OFF_RTOL = 1e-8
+#: Radau rtol 1e-8 vs 1e-11 with three stiff effects (relative L2): global error <= 10 rtol (seen: 4e-11).
+CONVERGENCE_RTOL = 1e-7
+#: Plateau force vs an algebraic steady state (exact: the volumes drop out of it): after > 30 relaxation
+#: times the transient is < 1e-12 of Δp, so 1e-6 only has to cover the rtol 1e-10 integration error.
+PLATEAU_RTOL = 1e-6
+#: Poppet at 10 kHz, ζ 1 vs the quasi-static flow: lift lag 2ζ/ω = 32 µs times ds/dt <= 10/s over
+#: ε + s >= 0.1 gives a < 3e-3 flow error at the reversals only (relative L2 of the force ~1e-4).
+FAST_POPPET_RTOL = 1e-3
+
+
+def rel_l2(a: np.ndarray, b: np.ndarray) -> float:
+    """Relative L2 distance ||a - b|| / ||b||."""
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+def run(effects: dict | None = None, alpha_v: float = ALPHA_V, **kw) -> np.ndarray | dict:
+    """The reference simulator on the module's triangle record."""
+    return simulate_effects(INP, T, RIG_A, PAPER_FLOW, alpha_v, P_R, effects, **kw)
+
+
+@pytest.fixture(scope="module")
+def bare() -> np.ndarray:
+    """Force without effects [N]."""
+    return run()
+
+
+def steady_dp(conductance: float) -> float:
+    """Δp [Pa] on the rising ramp with a linear leak: Q_O(Δp) + G Δp = A_P v (eq. (8) + leak)."""
+    q = AREA * SPEED
+    return brentq(lambda dp: orifice_flow(dp, PAPER_FLOW) + conductance * dp - q, 0.0, 1e8, xtol=1e-9, rtol=1e-14)
+
+
+# ----------------------------------------------------------------------------- independence, API
+def test_reference_imports_nothing_from_bayesdamper():
+    for name in ("reference_effects.py", "test_reference_effects.py"):
+        tree = ast.parse((Path(__file__).parent / name).read_text())
+        mods = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+        mods += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+        assert mods and not any(m.split(".")[0] == "bayesdamper" for m in mods)
+
+
+@pytest.mark.parametrize("bad", [
+    {"no_such_effect": {}},
+    {"leakage": {"conductance": 1e-12}},
+    {"leakage": {}},
+    {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "law": 3}},
+    {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "driver": 4}},
+    {"poppet_valve": {"natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "cracking_pressure_Pa": math.nan}},
+])
+def test_bad_effects_raise(bad):
+    with pytest.raises(ValueError):
+        resolve_effects(bad)
+
+
+def test_defaults_and_state_order():
+    fx = resolve_effects({"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 2.0, "damping_ratio": 0.3},
+                          "mains_interference": {"cos_amplitude_N": 1.0, "sin_amplitude_N": -1.0},
+                          "poppet_valve": {"natural_frequency_Hz": 50.0, "damping_ratio": 0.5,
+                                           "cracking_pressure_Pa": 1e5}})
+    assert fx["mains_interference"]["frequency_Hz"] == 50.0 and fx["poppet_valve"]["span_Pa"] == 1e6
+    assert (fx["unnamed_dynamics"]["threshold"], fx["unnamed_dynamics"]["driver"]) == (0.0, 0)
+    assert state_names(fx) == ("dp", "valve_lift", "valve_rate", "w", "w_dot")
+    assert state_names({name: {} for name in ()}) == ("dp",)
+
+
+# ----------------------------------------------------------------------------- no effects, "off" values
+def test_no_effects_equals_independent_simulate(bare):
+    ref = simulate(INP, T, RIG_A, PAPER_FLOW, ALPHA_V, P_R, rtol=1e-10)
+    assert 3000.0 < np.max(np.abs(ref)) < 5000.0  # rig-A's kN forces at 1 mm/s
+    assert rel_l2(bare, ref) < NO_EFFECT_RTOL
+
+
+def test_no_effects_equals_independent_simulate_on_a_ramped_sine():
+    """The smooth-input path (no triangle shortcut): SMALL damper, 10 mm at 1 Hz ramped in over half a cycle."""
+    inp, t = sine_input(0.01, 1.0, ramp_cycles=0.5), np.arange(0.0, 1.5, 1 / 500)
+    ref = simulate(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, rtol=1e-10)
+    got = simulate_effects(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5)
+    assert np.max(np.abs(ref)) > 100.0 and rel_l2(got, ref) < NO_EFFECT_RTOL
+
+
+OFF_VALUES = {
+    "poppet_valve": {"natural_frequency_Hz": 100.0, "damping_ratio": 0.5, "cracking_pressure_Pa": -1e12},  # s ≡ 1
+    "gas_spring": {"stiffness_N_per_m": 0.0},
+    "load_cell_offset": {"offset_N": 0.0},
+    "mains_interference": {"cos_amplitude_N": 0.0, "sin_amplitude_N": 0.0},
+    "leakage": {"conductance_m3_per_s_Pa": 0.0},
+    "seal_friction": {"stribeck_N": 0.0, "stribeck_velocity_m_s": 1e-3, "viscous_Ns_per_m": 0.0},
+    "unnamed_dynamics": {"gain": 0.0, "natural_frequency_Hz": 5.0, "damping_ratio": 0.3},
+}
+UNNAMED_VARIANTS = [dict(driver=1, law=1, placement=1), dict(driver=2, law=2, threshold=1e-3),
+                    dict(driver=3, law=3, threshold=1e-4, placement=1)]
+OFF_CASES = [pytest.param({k: v}, id=k) for k, v in OFF_VALUES.items()] + [
+    pytest.param({"unnamed_dynamics": {**OFF_VALUES["unnamed_dynamics"], **u}}, id=f"unnamed_dynamics-law{u['law']}")
+    for u in UNNAMED_VARIANTS]
+
+
+@pytest.mark.parametrize("effects", OFF_CASES)
+def test_effect_at_off_value_is_no_effect(effects, bare):
+    assert rel_l2(run(effects), bare) < OFF_RTOL
+
+
+def test_fast_servo_is_a_pure_delay(bare):
+    """1e5 Hz servo, ζ 1: for slow signals a delay 2ζ/ω, so |ΔF| <= 2 (2ζ/ω) |dF/dt| (relative L2)."""
+    tau = 2.0 * 1.0 / (2.0 * np.pi * 1e5)
+    f = run({"command_displacement": {"bandwidth_Hz": 1e5, "damping_ratio": 1.0}})
+    bound = 2.0 * tau * np.linalg.norm(np.gradient(bare, T)) / np.linalg.norm(bare)
+    assert 1e-6 < bound < 1e-4
+    assert rel_l2(f, bare) < bound
+
+
+def test_fast_poppet_follows_the_orifice_law(bare):
+    """f_v = 10 kHz, ζ 1, cracking 200 kPa: the lift tracks s(Δp), so the flow is eq. (8) (see FAST_POPPET_RTOL)."""
+    out = run({"poppet_valve": {"natural_frequency_Hz": 1e4, "damping_ratio": 1.0, "cracking_pressure_Pa": 2e5}},
+              return_states=True)
+    assert rel_l2(out["force"], bare) < FAST_POPPET_RTOL
+    s = np.clip((np.abs(out["dp"]) - 2e5) / 1e6, 0.0, 1.0)
+    assert np.max(np.abs(out["valve_lift"] - s)) < 1e-3 and np.ptp(s) > 0.3  # it does open and close
+
+
+def test_tolerance_convergence_with_three_effects():
+    effects = {"command_displacement": {"bandwidth_Hz": 20.0, "damping_ratio": 0.6},
+               "poppet_valve": {"natural_frequency_Hz": 200.0, "damping_ratio": 0.4, "cracking_pressure_Pa": 1e5},
+               "unnamed_dynamics": {"gain": 3e-13, "natural_frequency_Hz": 3.0, "damping_ratio": 0.2,
+                                    "law": 1, "placement": 1}}
+    loose, tight = run(effects, rtol=1e-8), run(effects, rtol=1e-11)
+    assert rel_l2(loose, tight) < CONVERGENCE_RTOL
+
+
+# ----------------------------------------------------------------------------- force terms
+def test_additive_force_terms(bare):
+    """Offset, gas spring, mains and seal friction add their closed forms to the force (no state change)."""
+    rng = np.random.default_rng(20240611)
+    f0, k_g, a_c, a_s = rng.uniform(-200.0, 200.0), rng.uniform(1e4, 1e5), rng.uniform(-5, 5), rng.uniform(-5, 5)
+    f_m, f_s, v_st, c_v = rng.uniform(45.0, 65.0), rng.uniform(10.0, 50.0), 4e-4, rng.uniform(1e3, 1e4)
+    y, v = INP.displacement(T), INP.velocity(T)
+    scale = np.max(np.abs(bare))
+    assert np.allclose(run({"load_cell_offset": {"offset_N": f0}}) - bare, f0, rtol=0, atol=1e-9 * scale)
+    assert np.allclose(run({"gas_spring": {"stiffness_N_per_m": k_g}}) - bare, k_g * y, rtol=0, atol=1e-9 * scale)
+    mains = a_c * np.cos(2 * np.pi * f_m * T) + a_s * np.sin(2 * np.pi * f_m * T)
+    got = run({"mains_interference": {"cos_amplitude_N": a_c, "sin_amplitude_N": a_s, "frequency_Hz": f_m}})
+    assert np.allclose(got - bare, mains, rtol=0, atol=1e-9 * scale)
+    friction = np.tanh(v / 1e-5) * f_s * np.exp(-(v / v_st) ** 2) + c_v * v
+    got = run({"seal_friction": {"stribeck_N": f_s, "stribeck_velocity_m_s": v_st, "viscous_Ns_per_m": c_v}})
+    assert np.allclose(got - bare, friction, rtol=0, atol=1e-9 * scale) and np.ptp(friction) > 1.0
+
+
+# ----------------------------------------------------------------------------- steady plateaus
+def test_leakage_plateau_force():
+    g_l = 1e-12
+    dp = steady_dp(g_l)
+    assert dp < 0.9 * float(quasi_static_dp(AREA * SPEED, PAPER_FLOW))  # the leak matters
+    f = run({"leakage": {"conductance_m3_per_s_Pa": g_l}}, ALPHA_STIFF)
+    assert np.allclose(f[RAMP_UP], AREA * dp, rtol=PLATEAU_RTOL, atol=0)
+
+
+def test_unnamed_flow_path_on_dp_is_a_leak_on_the_plateau():
+    """placement 1, driver Δp, linear: Q += g w with w -> Δp, so the plateau is the leakage one (G_l = g)."""
+    f = run({"unnamed_dynamics": {"gain": 1e-12, "natural_frequency_Hz": 20.0, "damping_ratio": 0.7,
+                                  "placement": 1}}, ALPHA_STIFF)
+    assert np.allclose(f[RAMP_UP], AREA * steady_dp(1e-12), rtol=PLATEAU_RTOL, atol=0)
+
+
+def test_unnamed_force_output_on_flow_driver():
+    """placement 0, driver Q_O, dead zone θ: on the plateau w = Q_O - θ = A v - θ, so F = A Δp + g (A v - θ)."""
+    gain, theta = -2e8, 1e-6  # [N s/m^3], [m^3/s]: -640 N
+    out = run({"unnamed_dynamics": {"gain": gain, "natural_frequency_Hz": 15.0, "damping_ratio": 0.5,
+                                    "driver": 1, "law": 2, "threshold": theta}}, ALPHA_STIFF, return_states=True)
+    dp = float(quasi_static_dp(AREA * SPEED, PAPER_FLOW))
+    want = AREA * dp + gain * (AREA * SPEED - theta)
+    assert np.allclose(out["force"][RAMP_UP], want, rtol=PLATEAU_RTOL, atol=0)
+    assert out["w"][0] == 0.0  # at rest: L(Q_O(0)) = 0
+
+
+def test_accumulator_without_line_keeps_the_orifice_plateau():
+    """p_a = 1 GPa, G = 0: a stiffer transient, but on the plateau Q = A v fixes Δp (eq. (4))."""
+    bare = run(alpha_v=ALPHA_STIFF)
+    f = run({"accumulator": {"charge_pressure_Pa": 1e9, "conductance_m3_per_s_Pa": 0.0}}, ALPHA_STIFF)
+    want = AREA * float(quasi_static_dp(AREA * SPEED, PAPER_FLOW))
+    assert np.allclose(f[RAMP_UP], want, rtol=PLATEAU_RTOL, atol=0)
+    assert np.allclose(bare[RAMP_UP], want, rtol=PLATEAU_RTOL, atol=0)
+    assert rel_l2(f, bare) > 0.01  # the transients differ: the check can fail
+
+
+def test_accumulator_line_acts_as_half_a_leak():
+    """Steady dp_1/dt = dp_2/dt = 0 give p̄ = p_a and Q_O(Δp) + (G/2) Δp = A v."""
+    p_a, g = 5e6, 2e-11
+    out = run({"accumulator": {"charge_pressure_Pa": p_a, "conductance_m3_per_s_Pa": g}}, ALPHA_STIFF,
+              return_states=True)
+    assert out["p_mean"][0] == p_a
+    assert np.allclose(out["force"][RAMP_UP], AREA * steady_dp(0.5 * g), rtol=PLATEAU_RTOL, atol=0)
+    assert np.allclose(out["p_mean"][RAMP_UP], p_a, rtol=PLATEAU_RTOL, atol=0)
+
+
+# ----------------------------------------------------------------------------- servo
+def test_servo_starts_in_ramp_tracking_and_rings_at_the_reversal():
+    """Started mid-ramp (v_prev = v): y_P = y_A - 2ζv/ω, F = A Δp(Av) + k_g y_P, steady until the reversal;
+    then v_P is the second-order step response to the -2v velocity step."""
+    f_s, zeta, k_g = 4.0, 0.3, 5e4
+    w = 2.0 * np.pi * f_s
+    t0 = 1.0
+    t = T[T >= t0]
+    out = simulate_effects(INP, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R,
+                           {"command_displacement": {"bandwidth_Hz": f_s, "damping_ratio": zeta},
+                            "gas_spring": {"stiffness_N_per_m": k_g}}, return_states=True)
+    ramp = t < T_FIRST + 2.0
+    y_p = INP.displacement(t) - 2.0 * zeta * SPEED / w
+    assert np.allclose(out["y_p"][ramp], y_p[ramp], rtol=0, atol=1e-12)
+    assert np.allclose(out["v_p"][ramp], SPEED, rtol=1e-9, atol=0)
+    want = AREA * float(quasi_static_dp(AREA * SPEED, PAPER_FLOW)) + k_g * y_p[ramp]
+    assert np.allclose(out["force"][ramp], want, rtol=1e-9, atol=0)
+    back = (t > T_FIRST + 2.0) & (t < T_FIRST + 4.0)
+    tau = t[back] - (T_FIRST + 2.0)
+    wd = w * math.sqrt(1.0 - zeta**2)
+    step = 1.0 - np.exp(-zeta * w * tau) * (np.cos(wd * tau) + zeta / math.sqrt(1.0 - zeta**2) * np.sin(wd * tau))
+    assert np.allclose(out["v_p"][back], SPEED - 2.0 * SPEED * step, rtol=0, atol=1e-9 * SPEED)
+
+
+def test_default_v_prev_is_the_velocity_just_before_t0():
+    """t0 on the first velocity step: v_prev = 0, so Δp starts at 0 (the right value would give eq. (4))."""
+    t = T[T >= T_FIRST]
+    t = np.concatenate(([T_FIRST], t))
+    dp = simulate_effects(INP, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R, return_states=True)["dp"]
+    assert dp[0] == 0.0 and dp[-1] < 0.0
+    dp = simulate_effects(INP, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R, v_prev=SPEED, return_states=True)["dp"]
+    assert dp[0] == float(quasi_static_dp(AREA * SPEED, PAPER_FLOW))
+
+
+def test_every_effect_at_once_runs_and_reports_every_state():
+    effects = {"command_displacement": {"bandwidth_Hz": 30.0, "damping_ratio": 0.7},
+               "poppet_valve": {"natural_frequency_Hz": 150.0, "damping_ratio": 0.5, "cracking_pressure_Pa": 5e4},
+               "accumulator": {"charge_pressure_Pa": 2e6, "conductance_m3_per_s_Pa": 1e-12},
+               "gas_spring": {"stiffness_N_per_m": 2e4}, "load_cell_offset": {"offset_N": -12.0},
+               "mains_interference": {"cos_amplitude_N": 2.0, "sin_amplitude_N": -1.0},
+               "leakage": {"conductance_m3_per_s_Pa": 2e-13},
+               "seal_friction": {"stribeck_N": 20.0, "stribeck_velocity_m_s": 5e-4, "viscous_Ns_per_m": 3e3},
+               "unnamed_dynamics": {"gain": 1e-4, "natural_frequency_Hz": 1.7, "damping_ratio": 0.25}}
+    assert list(effects) == list(EFFECT_PARAMS)
+    out = run(effects, return_states=True)
+    assert set(out) == {"t", "force", *state_names(effects)} and len(state_names(effects)) == 8
+    assert all(np.all(np.isfinite(v)) for v in out.values())
