@@ -2,14 +2,19 @@
 
 This helper module (not a test file) extends :func:`independent.simulate` with the nine "effects" of the
 effect-composition spec, written from the equations alone so that bayesdamper's compiled effect kernel can be
-judged against data bayesdamper did not make. It must never import ``bayesdamper``.
+judged against data bayesdamper did not make, plus one pseudo-effect bayesdamper's library does not hold,
+``fluid_inertance`` (an effect "in a form the library does not hold"). It must never import ``bayesdamper``.
 
 Model, SI units throughout. At time t, with the measured displacement y_A(t) and its velocity v_A(t):
 
 * piston motion y_P, v_P = y_A, v_A, or the states of the ``command_displacement`` servo;
 * chamber volumes V_1 = V_01 - A y_P, V_2 = V_02 + A y_P;
-* orifice flow Q_O(Δp) of eq. (8) (:func:`independent.orifice_flow`); path flow
-  Q = Q_O (ε + clip(x, 0, 1)) / (ε + s(Δp)) [poppet_valve] + G_l Δp [leakage] + g w [unnamed_dynamics, placement 1];
+* orifice flow Q_O(Δp) of eq. (8) (:func:`independent.orifice_flow`), or with ``fluid_inertance`` the state
+  Q_L of L dQ_L/dt = Δp - Δp_O(Q_L), Δp_O(Q) = C_L Q + C_Q Q|Q| of eq. (4) (:func:`independent.quasi_static_dp`),
+  which then replaces Q_O everywhere below; path flow
+  Q = Q_O (ε + clip(x, 0, 1)) / (ε + s(Δp)) [poppet_valve] + G_l Δp [leakage] + g y [unnamed_dynamics, placement 1];
+* the unnamed filter: ẅ = ω^2 (L(u) - w) - 2ζω ẇ, output y = w (``mode`` 0) or y = w - L(u) (``mode`` 1, the
+  transient: zero in steady state), added as g y to the force (placement 0) or to the path flow (placement 1);
 * B(p) = B_0 (1 + α_V) / (α_V + B_0 p_R / p^2); eq. (6) picks B_1, B_2 from p_R and p_R + |Δp| and
   dΔp/dt = (B_1/V_1 + B_2/V_2) (A v_P - Q) (the ``accumulator`` replaces this by two absolute pressures);
 * force F = A Δp + the effects' force terms.
@@ -22,9 +27,12 @@ Choices where the spec leaves room:
 
 * the servo is integrated as the tracking error e = y_P - y_A (same equations; ω^2 (y_A - y_P) of two
   nearly equal positions loses ~1e-7 m/s^2 to rounding at 1e5 Hz and stalls Radau); ``y_p`` is reported;
-* the unnamed filter's driver 1 is the bare eq. (8) flow Q_O(Δp), before the poppet scaling and the leak;
+* the unnamed filter's driver 1 is the bare eq. (8) flow Q_O(Δp) (Q_L with ``fluid_inertance``), before the
+  poppet scaling and the leak; in mode 1, L(u) is taken at the current time (no algebraic loop: u never
+  depends on the filter's output);
 * without the servo, force terms at a sample time use the right-continuous v_A (``inp.velocity``), like
-  the Coulomb term of :func:`independent.simulate`; the initial unnamed driver uses v_A(t0) likewise.
+  the Coulomb term of :func:`independent.simulate`; the unnamed filter starts at rest at its input just before
+  t0 (driver v_P: the velocity before the step, ``v_prev``).
 """
 
 from __future__ import annotations
@@ -41,6 +49,7 @@ __all__ = [
     "EFFECT_PARAMS",
     "EFFECT_STATES",
     "POPPET_EPSILON",
+    "inertance_for_frequency",
     "resolve_effects",
     "simulate_effects",
     "state_names",
@@ -59,7 +68,8 @@ EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
     "leakage": {"conductance_m3_per_s_Pa": None},
     "seal_friction": {"stribeck_N": None, "stribeck_velocity_m_s": None, "viscous_Ns_per_m": None},
     "unnamed_dynamics": {"gain": None, "natural_frequency_Hz": None, "damping_ratio": None, "threshold": 0.0,
-                         "driver": 0, "law": 0, "placement": 0},
+                         "driver": 0, "law": 0, "placement": 0, "mode": 0},
+    "fluid_inertance": {"inertance_kg_per_m4": None},
 }
 
 #: Effect name -> names of its states (in state-vector order); effects not listed have no state.
@@ -68,6 +78,7 @@ EFFECT_STATES: dict[str, tuple[str, ...]] = {
     "poppet_valve": ("valve_lift", "valve_rate"),
     "accumulator": ("p_mean",),
     "unnamed_dynamics": ("w", "w_dot"),
+    "fluid_inertance": ("q_l",),
 }
 
 #: ε of the poppet flow scaling (ε + clip(x, 0, 1)) / (ε + s(Δp)).
@@ -81,7 +92,7 @@ FRICTION_V_SIGN = 1e-5
 # tolerance of each state from ``atol`` [Pa]: 1 MPa <-> 1 cm <-> 0.1 m/s <-> 1e-5 m^3/s <-> 1 (unit-free).
 _PRESSURE_SCALE = 1e6
 _DRIVER_SCALES = {0: 1e6, 1: 1e-5, 2: 1e-2, 3: 1e-1}  # Δp [Pa], Q_O [m^3/s], y_P [m], v_P [m/s]
-_INTEGER_PARAMS = {"driver": (0, 1, 2, 3), "law": (0, 1, 2, 3), "placement": (0, 1)}
+_INTEGER_PARAMS = {"driver": (0, 1, 2, 3), "law": (0, 1, 2, 3), "placement": (0, 1), "mode": (0, 1)}
 
 
 # ----------------------------------------------------------------------------- effect parameters
@@ -102,15 +113,16 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[s
     -------
     dict
         ``{effect: {param: float}}`` in the canonical order of :data:`EFFECT_PARAMS`, every parameter present
-        (``driver``, ``law`` and ``placement`` as ints).
+        (``driver``, ``law``, ``placement`` and ``mode`` as ints).
 
     Raises
     ------
     ValueError
         Unknown effect or parameter, missing required parameter, or a value outside its domain: all values
-        finite; frequencies, ``span_Pa``, ``stribeck_velocity_m_s`` and ``charge_pressure_Pa`` > 0; damping
-        ratios, conductances and ``threshold`` >= 0; ``threshold`` > 0 for law 3 (tanh(u / θ));
-        ``driver``, ``law`` in {0, 1, 2, 3} and ``placement`` in {0, 1} (integral values).
+        finite; frequencies, ``span_Pa``, ``stribeck_velocity_m_s``, ``charge_pressure_Pa`` and
+        ``inertance_kg_per_m4`` > 0; damping ratios, conductances and ``threshold`` >= 0; ``threshold`` > 0 for
+        law 3 (tanh(u / θ)); ``driver``, ``law`` in {0, 1, 2, 3}, ``placement`` and ``mode`` in {0, 1}
+        (integral values).
     """
     effects = {} if effects is None else effects
     unknown = sorted(set(effects) - set(EFFECT_PARAMS))
@@ -135,7 +147,8 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[s
             if param in _INTEGER_PARAMS:
                 _check(value in _INTEGER_PARAMS[param], name, param, value, f"one of {_INTEGER_PARAMS[param]}")
                 value = int(value)
-            elif param.endswith("_Hz") or param in ("span_Pa", "stribeck_velocity_m_s", "charge_pressure_Pa"):
+            elif param.endswith("_Hz") or param in ("span_Pa", "stribeck_velocity_m_s", "charge_pressure_Pa",
+                                                     "inertance_kg_per_m4"):
                 _check(value > 0.0, name, param, value, "> 0")
             elif param in ("damping_ratio", "conductance_m3_per_s_Pa", "threshold"):
                 _check(value >= 0.0, name, param, value, ">= 0")
@@ -190,6 +203,21 @@ class _Model:
         p = self.fx["poppet_valve"]
         return min(max((abs(dp) - p["cracking_pressure_Pa"]) / p["span_Pa"], 0.0), 1.0)
 
+    def orifice_dp(self, q: float) -> float:
+        """Eq. (4): Δp_O(Q) = C_L Q + C_Q Q|Q| [Pa], the (C_L12, C_Q12) pair for Q >= 0, else (C_L21, C_Q21)."""
+        c_l, c_q = (self.flow[0], self.flow[1]) if q >= 0.0 else (self.flow[2], self.flow[3])
+        return c_l * q + c_q * q * abs(q)
+
+    def orifice(self, x, dp: float) -> float:
+        """Orifice flow [m^3/s]: the state Q_L with ``fluid_inertance``, else Q_O(Δp) of eq. (8)."""
+        if "fluid_inertance" in self.index:
+            return float(x[self.index["fluid_inertance"]])
+        return orifice_flow(dp, self.flow)
+
+    def unnamed_output(self, w: float, target: float) -> float:
+        """The unnamed filter's output before the gain: w (mode 0) or w - L(u) (mode 1, zero DC gain)."""
+        return w - target if self.fx["unnamed_dynamics"]["mode"] == 1 else w
+
     def law(self, u: float) -> float:
         """The unnamed filter's static law L(u)."""
         p = self.fx["unnamed_dynamics"]
@@ -210,7 +238,7 @@ class _Model:
         return y_a, v_a
 
     def driver(self, dp: float, q_o: float, y_p: float, v_p: float) -> float:
-        """The unnamed filter's driver u: Δp, Q_O(Δp) of eq. (8), y_P or v_P."""
+        """The unnamed filter's driver u: Δp, Q_O(Δp) of eq. (8) (Q_L with ``fluid_inertance``), y_P or v_P."""
         return (dp, q_o, y_p, v_p)[self.fx["unnamed_dynamics"]["driver"]]
 
     # --- dynamics
@@ -221,8 +249,11 @@ class _Model:
         dp = float(x[0])
         y_p, v_p = self.piston(x, y_a, v_a)
         vol1, vol2 = self.v01 - self.area * y_p, self.v02 + self.area * y_p
-        q_o = orifice_flow(dp, self.flow)
+        q_o = self.orifice(x, dp)
         q = q_o
+        target = 0.0
+        if "unnamed_dynamics" in fx:
+            target = self.law(self.driver(dp, q_o, y_p, v_p))  # L(u) at time t: u never depends on w
         s = 0.0
         if "poppet_valve" in fx:
             s = self.opening(dp)
@@ -231,7 +262,7 @@ class _Model:
         if "leakage" in fx:
             q += fx["leakage"]["conductance_m3_per_s_Pa"] * dp
         if "unnamed_dynamics" in fx and fx["unnamed_dynamics"]["placement"] == 1:
-            q += fx["unnamed_dynamics"]["gain"] * float(x[idx["unnamed_dynamics"]])
+            q += fx["unnamed_dynamics"]["gain"] * self.unnamed_output(float(x[idx["unnamed_dynamics"]]), target)
         q_piston = self.area * v_p
         if "accumulator" in fx:
             p_a, g = fx["accumulator"]["charge_pressure_Pa"], fx["accumulator"]["conductance_m3_per_s_Pa"]
@@ -259,9 +290,11 @@ class _Model:
             dx[i + 1] = w * w * (s - x[i]) - 2.0 * z["damping_ratio"] * w * x[i + 1]
         if "unnamed_dynamics" in fx:
             i, w, z = idx["unnamed_dynamics"], om["unnamed_dynamics"], fx["unnamed_dynamics"]
-            target = self.law(self.driver(dp, q_o, y_p, v_p))
             dx[i] = x[i + 1]
             dx[i + 1] = w * w * (target - x[i]) - 2.0 * z["damping_ratio"] * w * x[i + 1]
+        if "fluid_inertance" in fx:
+            i = idx["fluid_inertance"]
+            dx[i] = (dp - self.orifice_dp(float(x[i]))) / fx["fluid_inertance"]["inertance_kg_per_m4"]
         return dx
 
     def initial(self, dp0: float, y_a0: float, v_a0: float, v_prev: float) -> np.ndarray:
@@ -277,9 +310,11 @@ class _Model:
             x[idx["poppet_valve"]] = self.opening(dp0)
         if "accumulator" in fx:
             x[idx["accumulator"]] = fx["accumulator"]["charge_pressure_Pa"]
+        if "fluid_inertance" in fx:
+            x[idx["fluid_inertance"]] = orifice_flow(dp0, self.flow)  # steady: Δp_O(Q_L) = Δp0
         if "unnamed_dynamics" in fx:
-            y_p, v_p = self.piston(x, y_a0, v_a0)
-            x[idx["unnamed_dynamics"]] = self.law(self.driver(dp0, orifice_flow(dp0, self.flow), y_p, v_p))
+            y_p, v_p = self.piston(x, y_a0, v_prev)  # at rest at its input just before t0
+            x[idx["unnamed_dynamics"]] = self.law(self.driver(dp0, self.orifice(x, dp0), y_p, v_p))
         return x
 
     def atol_vector(self, atol: float) -> np.ndarray:
@@ -297,6 +332,8 @@ class _Model:
             i, p = idx["unnamed_dynamics"], fx["unnamed_dynamics"]
             scale = 1.0 if p["law"] == 3 else _DRIVER_SCALES[p["driver"]]
             tol[i], tol[i + 1] = unit * scale, unit * scale * self.omega["unnamed_dynamics"]
+        if "fluid_inertance" in fx:  # 1e-5 m^3/s per MPa: 1e-17 m^3/s at atol 1e-6 Pa, i.e. about the flow
+            tol[idx["fluid_inertance"]] = unit * _DRIVER_SCALES[1]  # error 1/C_L (4e-11 m^3/(s Pa)) * atol
         return tol
 
     def force(self, t: np.ndarray, states: np.ndarray, y_p: np.ndarray, v_p: np.ndarray) -> np.ndarray:
@@ -316,8 +353,57 @@ class _Model:
             stribeck = p["stribeck_N"] * np.exp(-((v_p / p["stribeck_velocity_m_s"]) ** 2))
             f = f + np.tanh(v_p / FRICTION_V_SIGN) * stribeck + p["viscous_Ns_per_m"] * v_p
         if "unnamed_dynamics" in fx and fx["unnamed_dynamics"]["placement"] == 0:
-            f = f + fx["unnamed_dynamics"]["gain"] * states[self.index["unnamed_dynamics"]]
+            w = states[self.index["unnamed_dynamics"]]
+            if fx["unnamed_dynamics"]["mode"] == 1:  # w - L(u), u from the states at the sample times
+                u = [self.driver(float(s[0]), self.orifice(s, float(s[0])), float(yp), float(vp))
+                     for s, yp, vp in zip(states.T, y_p, v_p, strict=True)]
+                w = w - np.array([self.law(ui) for ui in u])
+            f = f + fx["unnamed_dynamics"]["gain"] * w
         return f
+
+
+def inertance_for_frequency(freq_hz: float, damper: dict, flow, alpha_v: float, p_r: float, dp: float) -> float:
+    """Inertance L [kg/m^4] of ``fluid_inertance`` that puts the Helmholtz resonance at ``freq_hz`` around Δp = dp.
+
+    Linearised about the operating point Δp = ``dp`` (piston at y = 0), the pressure equation and the
+    inertance equation read
+
+        dΔp/dt = K (A v - Q_L),   L dQ_L/dt = Δp - Δp_O(Q_L),   K = B_1/V_01 + B_2/V_02,
+
+    with B_1, B_2 of eq. (6) at ``dp`` (B(p_R + Δp) on the high side, B(p_R) on the other). With
+    R = dΔp_O/dQ at the operating point this is d²Q_L/dt² + (R/L) dQ_L/dt + (K/L) Q_L = (K/L) A v: an
+    undamped natural frequency ω_0 = sqrt(K / L), so L = K / (2π f)^2, and a damping ratio
+    ζ = R / (2 sqrt(K L)) (decay rate ζω_0 = R / (2L)).
+
+    Parameters
+    ----------
+    freq_hz : float
+        Wanted undamped Helmholtz frequency f [Hz] (> 0).
+    damper : dict
+        ``v01``, ``v02`` [m^3] and ``b0`` B_0 [Pa] (``area`` is not needed).
+    flow : sequence of 4 floats
+        (C_L12, C_Q12, C_L21, C_Q21) of eq. (8). ω_0 does not depend on it (only ζ does); taken for the
+        simulators' uniform signature and checked to be 4 finite numbers.
+    alpha_v, p_r : float
+        α_V [-] and p_R [Pa] of eq. (3)/(6).
+    dp : float
+        Operating Δp [Pa].
+
+    Returns
+    -------
+    float
+        L = (B_1/V_01 + B_2/V_02) / (2π f)^2 [kg/m^4].
+    """
+    if not (freq_hz > 0.0 and math.isfinite(freq_hz)):
+        raise ValueError(f"freq_hz must be finite and > 0, got {freq_hz!r}")
+    if len(flow) != 4 or not all(math.isfinite(float(c)) for c in flow):
+        raise ValueError(f"flow must be 4 finite coefficients, got {flow!r}")
+    b0, dp = float(damper["b0"]), float(dp)
+    b_hi = float(bulk_modulus(p_r + abs(dp), b0, alpha_v, p_r))
+    b_lo = float(bulk_modulus(p_r, b0, alpha_v, p_r))
+    b1, b2 = (b_hi, b_lo) if dp >= 0.0 else (b_lo, b_hi)
+    stiffness = b1 / float(damper["v01"]) + b2 / float(damper["v02"])
+    return stiffness / (2.0 * math.pi * freq_hz) ** 2
 
 
 def _segment(inp, ta: float, tb: float) -> tuple[Callable[[float], float], Callable[[float], float]]:
@@ -361,7 +447,8 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
         for t0 < 0. Sets ``dp0``'s default and the servo's initial state.
     rtol, atol : float
         Radau tolerances: relative [-], absolute for Δp and p̄ [Pa]; every other state gets ``atol`` scaled by
-        its characteristic magnitude per 1 MPa (1 cm, 0.1 m/s, unit lift, 1e-5 m^3/s; rates times ω).
+        its characteristic magnitude per 1 MPa (1 cm, 0.1 m/s, unit lift, 1e-5 m^3/s for Q_L and flow-driven
+        w; rates times ω).
     return_states : bool
         Return a dict instead of the force.
 
@@ -370,9 +457,9 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
     ndarray, shape (n,), or dict
         The force F [N] at ``t_samples``; with ``return_states`` a dict with ``"t"``, ``"force"`` and one
         array per state named as :func:`state_names` (``"dp"`` [Pa], ``"y_p"`` [m], ``"v_p"`` [m/s],
-        ``"valve_lift"`` [-], ``"valve_rate"`` [1/s], ``"p_mean"`` [Pa], ``"w"``, ``"w_dot"``). Samples at
-        or before ``t0`` get the initial state. Without the servo, the force terms use y_A(t) and the
-        right-continuous v_A(t) (``inp.velocity``) at the sample times.
+        ``"valve_lift"`` [-], ``"valve_rate"`` [1/s], ``"p_mean"`` [Pa], ``"w"``, ``"w_dot"``, ``"q_l"``
+        [m^3/s]). Samples at or before ``t0`` get the initial state. Without the servo, the force terms use
+        y_A(t) and the right-continuous v_A(t) (``inp.velocity``) at the sample times.
 
     Raises
     ------

@@ -3,6 +3,11 @@
 Rig-A (tests/independent.py) on a 1 mm/s, 2 mm triangle: each ramp lasts 2 s. The plateau checks use a
 nearly gas-free fluid (α_V = 1000, p_R = 150 kPa: Δp relaxes with τ < 50 ms), so the last 0.5 s of the
 rising ramp (> 30 τ after the reversal) is a steady plateau; the other checks use α_V = 60 (τ up to ~0.5 s).
+
+The pseudo-effect ``fluid_inertance`` (L dQ_L/dt = Δp - Δp_O(Q_L)) is checked with L_RING = 9.24e9 kg/m^4,
+the Helmholtz frequency sqrt(K/L) = 2π 5 Hz at the plateau Δp = 863 kPa with α_V = 1000
+(K = B_1/V_01 + B_2/V_02 = 9.12e12 Pa/m^3; R = dΔp_O/dQ = 3.87e11 Pa s/m^3, so ζ = R/(2 sqrt(K L)) = 0.67 and
+the decay rate R/(2L) = 21/s: gone, e^-31, by the plateau), and with a tiny L = 1e3 kg/m^4 (lag L/R < 1.2e-7 s).
 """
 
 from __future__ import annotations
@@ -24,7 +29,13 @@ from independent import (
     sine_input,
     triangle_input,
 )
-from reference_effects import EFFECT_PARAMS, resolve_effects, simulate_effects, state_names
+from reference_effects import (
+    EFFECT_PARAMS,
+    inertance_for_frequency,
+    resolve_effects,
+    simulate_effects,
+    state_names,
+)
 from scipy.optimize import brentq
 
 ALPHA_V, P_R = 60.0, 1.5e5
@@ -34,6 +45,9 @@ INP = triangle_input(SPEED, AMPLITUDE, 0.0, T_FIRST, cycles=0.5)  # up 2 s, down
 T = np.arange(0.0, 4.5, 1 / 200)
 RAMP_UP = (T > T_FIRST + 1.5) & (T < T_FIRST + 2.0)  # last 0.5 s of the rising ramp (> 7 relaxation times)
 AREA = RIG_A["area"]
+DP_PLATEAU = float(quasi_static_dp(AREA * SPEED, PAPER_FLOW))  # 862.6 kPa: eq. (4) at Q = A v, F = 3623 N
+#: Ringing inertance: 5 Hz Helmholtz resonance at the plateau with α_V = 1000 (9.24e9 kg/m^4, ζ = 0.67).
+L_RING = inertance_for_frequency(5.0, RIG_A, PAPER_FLOW, ALPHA_STIFF, P_R, DP_PLATEAU)
 
 #: Same equations, same Radau, same tolerances (rtol 1e-10): only the step sequences may differ.
 NO_EFFECT_RTOL = 1e-6
@@ -47,6 +61,9 @@ PLATEAU_RTOL = 1e-6
 #: Poppet at 10 kHz, ζ 1 vs the quasi-static flow: lift lag 2ζ/ω = 32 µs times ds/dt <= 10/s over
 #: ε + s >= 0.1 gives a < 3e-3 flow error at the reversals only (relative L2 of the force ~1e-4).
 FAST_POPPET_RTOL = 1e-3
+#: Small-signal ringing vs the linearised ω_d = sqrt(K/L) sqrt(1 - ζ^2) at y = 0: the chamber volumes drift
+#: by < 0.2 % over the first two half periods (seen: 0.3 % on the half period, 1 % on the decay ratio).
+HELMHOLTZ_RTOL = 0.01
 
 
 def rel_l2(a: np.ndarray, b: np.ndarray) -> float:
@@ -87,6 +104,11 @@ def test_reference_imports_nothing_from_bayesdamper():
     {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "law": 3}},
     {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "driver": 4}},
     {"poppet_valve": {"natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "cracking_pressure_Pa": math.nan}},
+    {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "mode": 2}},
+    {"unnamed_dynamics": {"gain": 1.0, "natural_frequency_Hz": 1.0, "damping_ratio": 0.5, "mode": 0.5}},
+    {"fluid_inertance": {}},
+    {"fluid_inertance": {"inertance_kg_per_m4": 0.0}},
+    {"fluid_inertance": {"inertance_kg_per_m4": -1e9}},
 ])
 def test_bad_effects_raise(bad):
     with pytest.raises(ValueError):
@@ -100,7 +122,9 @@ def test_defaults_and_state_order():
                                            "cracking_pressure_Pa": 1e5}})
     assert fx["mains_interference"]["frequency_Hz"] == 50.0 and fx["poppet_valve"]["span_Pa"] == 1e6
     assert (fx["unnamed_dynamics"]["threshold"], fx["unnamed_dynamics"]["driver"]) == (0.0, 0)
+    assert fx["unnamed_dynamics"]["mode"] == 0 and isinstance(fx["unnamed_dynamics"]["mode"], int)
     assert state_names(fx) == ("dp", "valve_lift", "valve_rate", "w", "w_dot")
+    assert state_names({"fluid_inertance": {"inertance_kg_per_m4": 1e9}, **fx})[-1] == "q_l"
     assert state_names({name: {} for name in ()}) == ("dp",)
 
 
@@ -129,7 +153,7 @@ OFF_VALUES = {
     "unnamed_dynamics": {"gain": 0.0, "natural_frequency_Hz": 5.0, "damping_ratio": 0.3},
 }
 UNNAMED_VARIANTS = [dict(driver=1, law=1, placement=1), dict(driver=2, law=2, threshold=1e-3),
-                    dict(driver=3, law=3, threshold=1e-4, placement=1)]
+                    dict(driver=3, law=3, threshold=1e-4, placement=1), dict(driver=3, law=0, mode=1)]
 OFF_CASES = [pytest.param({k: v}, id=k) for k, v in OFF_VALUES.items()] + [
     pytest.param({"unnamed_dynamics": {**OFF_VALUES["unnamed_dynamics"], **u}}, id=f"unnamed_dynamics-law{u['law']}")
     for u in UNNAMED_VARIANTS]
@@ -274,8 +298,131 @@ def test_every_effect_at_once_runs_and_reports_every_state():
                "mains_interference": {"cos_amplitude_N": 2.0, "sin_amplitude_N": -1.0},
                "leakage": {"conductance_m3_per_s_Pa": 2e-13},
                "seal_friction": {"stribeck_N": 20.0, "stribeck_velocity_m_s": 5e-4, "viscous_Ns_per_m": 3e3},
-               "unnamed_dynamics": {"gain": 1e-4, "natural_frequency_Hz": 1.7, "damping_ratio": 0.25}}
+               "unnamed_dynamics": {"gain": 1e-4, "natural_frequency_Hz": 1.7, "damping_ratio": 0.25, "mode": 1},
+               "fluid_inertance": {"inertance_kg_per_m4": 1e9}}
     assert list(effects) == list(EFFECT_PARAMS)
     out = run(effects, return_states=True)
-    assert set(out) == {"t", "force", *state_names(effects)} and len(state_names(effects)) == 8
+    assert set(out) == {"t", "force", *state_names(effects)} and len(state_names(effects)) == 9
     assert all(np.all(np.isfinite(v)) for v in out.values())
+
+
+# ----------------------------------------------------------------------------- unnamed filter, mode 1
+def test_unnamed_transient_mode_on_the_force_is_mode_0_minus_the_steady_part():
+    """placement 0, driver v_P: the states do not depend on the mode, so F_0 - F_1 = g L(u) = g v exactly;
+    mode 1's term g (w - v) is -g Δv right after a velocity step and gone (e^-23) by the plateau."""
+    gain = -5e5  # [N s/m]: 500 N, 14 % of the plateau force, at 1 mm/s
+    ud = {"gain": gain, "natural_frequency_Hz": 5.0, "damping_ratio": 0.5, "driver": 3}
+    bare = run(alpha_v=ALPHA_STIFF)
+    mode0 = run({"unnamed_dynamics": ud}, ALPHA_STIFF)
+    mode1 = run({"unnamed_dynamics": {**ud, "mode": 1}}, ALPHA_STIFF)
+    scale = AREA * DP_PLATEAU
+    assert np.allclose(mode0 - mode1, gain * INP.velocity(T), rtol=0, atol=1e-9 * scale)  # seen: 5e-13 N
+    assert np.allclose(mode1[RAMP_UP], bare[RAMP_UP], rtol=PLATEAU_RTOL, atol=0)  # seen: 8e-12 relative
+    after = (T > T_FIRST) & (T < T_FIRST + 0.3)
+    assert np.max(np.abs(mode1[after] - bare[after])) > 0.1 * scale  # seen: 0.138 (-g v at the first sample)
+
+
+def test_unnamed_transient_mode_in_the_flow_path_vanishes_on_the_plateau():
+    """placement 1, driver Q_O, g = 0.2: Q = Q_O + g (w - Q_O) is Q_O on the plateau, so Δp is eq. (4) at A v
+    (mode 0 would give eq. (4) at A v / (1 + g)); right after the step w lags Q_O and the force differs."""
+    gain = 0.2
+    ud = {"gain": gain, "natural_frequency_Hz": 5.0, "damping_ratio": 1.0, "driver": 1, "placement": 1}
+    bare = run(alpha_v=ALPHA_STIFF)
+    mode1 = run({"unnamed_dynamics": {**ud, "mode": 1}}, ALPHA_STIFF)
+    mode0 = run({"unnamed_dynamics": ud}, ALPHA_STIFF)
+    scale = AREA * DP_PLATEAU
+    assert np.allclose(mode1[RAMP_UP], bare[RAMP_UP], rtol=PLATEAU_RTOL, atol=0)  # seen: 6e-13 relative
+    assert np.allclose(mode1[RAMP_UP], scale, rtol=PLATEAU_RTOL, atol=0)
+    want0 = AREA * float(quasi_static_dp(AREA * SPEED / (1.0 + gain), PAPER_FLOW))
+    assert np.allclose(mode0[RAMP_UP], want0, rtol=PLATEAU_RTOL, atol=0)
+    after = (T > T_FIRST) & (T < T_FIRST + 0.3)
+    assert np.max(np.abs(mode1[after] - bare[after])) > 0.05 * scale  # seen: 0.16
+
+
+# ----------------------------------------------------------------------------- fluid inertance (pseudo-effect)
+def test_inertance_for_frequency_is_k_over_omega_squared():
+    b_hi = RIG_A["b0"] * (1 + ALPHA_STIFF) / (ALPHA_STIFF + RIG_A["b0"] * P_R / (P_R + DP_PLATEAU) ** 2)
+    b_lo = RIG_A["b0"] * (1 + ALPHA_STIFF) / (ALPHA_STIFF + RIG_A["b0"] / P_R)
+    k = (b_hi + b_lo) / RIG_A["v01"]  # v01 = v02
+    assert math.isclose(L_RING, k / (2 * math.pi * 5.0) ** 2, rel_tol=1e-12)
+    assert 9.2e9 < L_RING < 9.3e9
+    # eq. (6) swaps B_1 and B_2 with the sign of Δp: the same K for a symmetric damper
+    assert math.isclose(inertance_for_frequency(5.0, RIG_A, PAPER_FLOW, ALPHA_STIFF, P_R, -DP_PLATEAU), L_RING)
+    with pytest.raises(ValueError):
+        inertance_for_frequency(0.0, RIG_A, PAPER_FLOW, ALPHA_STIFF, P_R, DP_PLATEAU)
+
+
+def test_tiny_inertance_is_no_effect(bare):
+    """L = 1e3 kg/m^4: Q_L lags Q_O(Δp) by L/R <= L/min(C_L) = 1.2e-7 s, i.e. the force by about as much, so
+    |ΔF| <= 2 (L/min C_L) |dF/dt| (relative L2; seen 1.3e-8 against a bound of 5.6e-7)."""
+    inertance = 1e3
+    out = run({"fluid_inertance": {"inertance_kg_per_m4": inertance}}, return_states=True)
+    tau = inertance / min(PAPER_FLOW[0], PAPER_FLOW[2])
+    bound = 2.0 * tau * np.linalg.norm(np.gradient(bare, T)) / np.linalg.norm(bare)
+    assert 1e-7 < bound < 1e-5
+    assert rel_l2(out["force"], bare) < bound
+    q_o = np.array([orifice_flow(d, PAPER_FLOW) for d in out["dp"]])
+    assert np.allclose(out["q_l"], q_o, rtol=0, atol=1e-5 * AREA * SPEED)
+    assert out["q_l"][0] == 0.0  # at rest: Q_O(0)
+
+
+def test_ringing_inertance_overshoots_then_settles_on_eq8():
+    """L_RING after the first velocity step: the force overshoots the plateau by ~50 % (no inertance: a
+    monotone rise), yet on the plateau the flow is eq. (8) again, so the force is the no-effect one."""
+    bare = run(alpha_v=ALPHA_STIFF)
+    out = run({"fluid_inertance": {"inertance_kg_per_m4": L_RING}}, ALPHA_STIFF, return_states=True)
+    f, scale = out["force"], AREA * DP_PLATEAU
+    after = (T > T_FIRST) & (T < T_FIRST + 1.0)
+    assert np.max(np.abs(f[after] - bare[after])) > 0.01 * scale  # seen: 0.76
+    assert np.max(f[after]) > 1.3 * scale and np.max(bare[after]) < scale  # seen: 1.50 and 1.0
+    assert np.allclose(f[RAMP_UP], bare[RAMP_UP], rtol=PLATEAU_RTOL, atol=0)  # seen: 3e-13 relative
+    assert np.allclose(f[RAMP_UP], scale, rtol=PLATEAU_RTOL, atol=0)
+    assert np.allclose(out["q_l"][RAMP_UP], AREA * SPEED, rtol=PLATEAU_RTOL, atol=0)
+
+
+def test_inertance_small_signal_ringing_matches_the_helmholtz_formula():
+    """Start on the ramp 1 % above the plateau Δp (Q_L steady at it): Δp rings about the plateau with
+    ω_d = ω_0 sqrt(1 - ζ^2), ω_0^2 = K/L = (2π 5 Hz)^2, ζ = R / (2 sqrt(K L)), losing e^(-π ζ/sqrt(1-ζ^2))
+    per half period (see HELMHOLTZ_RTOL)."""
+    r = PAPER_FLOW[0] + 2.0 * PAPER_FLOW[1] * AREA * SPEED  # dΔp_O/dQ at the plateau
+    w0 = 2.0 * math.pi * 5.0
+    zeta = r / (2.0 * math.sqrt(w0**2 * L_RING * L_RING))  # K = ω_0^2 L
+    assert 0.6 < zeta < 0.7
+    t0 = T_FIRST + 0.01
+    t = np.arange(t0, t0 + 0.6, 1 / 4000)
+    out = simulate_effects(INP, t, RIG_A, PAPER_FLOW, ALPHA_STIFF, P_R,
+                           {"fluid_inertance": {"inertance_kg_per_m4": L_RING}}, dp0=1.01 * DP_PLATEAU, v_prev=SPEED,
+                           return_states=True)
+    x = out["dp"] - DP_PLATEAU
+    i = np.nonzero(np.sign(x[1:]) != np.sign(x[:-1]))[0]
+    crossings = t[i] - x[i] * (t[i + 1] - t[i]) / (x[i + 1] - x[i])
+    half = math.pi / (w0 * math.sqrt(1.0 - zeta**2))  # 0.1340 s
+    assert len(crossings) >= 3
+    assert np.allclose(np.diff(crossings[:3]), half, rtol=HELMHOLTZ_RTOL, atol=0)  # seen: 0.1336, 0.1332 s
+    peaks = [np.max(np.abs(x[(t > a) & (t < b)])) for a, b in zip(crossings[:2], crossings[1:3], strict=True)]
+    ratio = math.exp(-math.pi * zeta / math.sqrt(1.0 - zeta**2))  # 0.0606
+    assert math.isclose(peaks[1] / peaks[0], ratio, rel_tol=2 * HELMHOLTZ_RTOL)  # seen: 0.0613
+
+
+def test_unnamed_flow_driver_is_the_inertance_flow():
+    """With fluid_inertance, driver 1 is Q_L: a fast filter (200 Hz, ζ 1: lag 2ζ/ω = 1.6 ms) keeps w on Q_L,
+    not on Q_O(Δp), while the two differ by more than A v during the ringing; mode 1 on the force adds exactly
+    g (w - Q_L) to A Δp."""
+    gain = 3e8  # [N s/m^3]
+    out = run({"unnamed_dynamics": {"gain": gain, "natural_frequency_Hz": 200.0, "damping_ratio": 1.0, "driver": 1,
+                                    "mode": 1}, "fluid_inertance": {"inertance_kg_per_m4": L_RING}},
+              ALPHA_STIFF, return_states=True)
+    extra = out["force"] - AREA * out["dp"]
+    assert np.allclose(extra, gain * (out["w"] - out["q_l"]), rtol=0, atol=1e-9 * AREA * DP_PLATEAU)
+    q_o = np.array([orifice_flow(d, PAPER_FLOW) for d in out["dp"]])
+    assert np.max(np.abs(out["q_l"] - q_o)) > AREA * SPEED  # seen: 1.3 A v
+    assert np.max(np.abs(out["w"] - out["q_l"])) < 0.2 * AREA * SPEED  # seen: 0.064 A v (1.3 if driven by Q_O)
+
+
+def test_tolerance_convergence_with_fluid_inertance():
+    effects = {"fluid_inertance": {"inertance_kg_per_m4": L_RING},
+               "poppet_valve": {"natural_frequency_Hz": 200.0, "damping_ratio": 0.4, "cracking_pressure_Pa": 1e5},
+               "unnamed_dynamics": {"gain": 0.2, "natural_frequency_Hz": 3.0, "damping_ratio": 0.3, "driver": 1,
+                                    "placement": 1, "mode": 1}}
+    loose, tight = run(effects, rtol=1e-8), run(effects, rtol=1e-11)
+    assert rel_l2(loose, tight) < CONVERGENCE_RTOL

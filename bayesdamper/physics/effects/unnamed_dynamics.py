@@ -8,10 +8,12 @@ to the model so they are fitted with intervals like any other effect::
 
 u is the driver (``driver``: 0 Δp [Pa], 1 orifice flow Q_O [m^3/s], 2 piston displacement y_P [m],
 3 piston velocity v_P [m/s]); L the static law (``law``: 0 linear, 1 |u|, 2 dead zone
-sign(u) max(|u| - θ, 0), 3 smooth sign tanh(u/θ)); the output g w acts on the force (``placement`` 0:
-F += g w [N]) or on the flow path (1: Q += g w [m^3/s]). The filter has unit DC gain, so g is the
-static gain [output unit per driver unit] and the structure parameters (driver, law, placement) are
-fixed by the diagnosis, not fitted. It starts at rest at its input: w = L(u(t0)), dw/dt = 0.
+sign(u) max(|u| - θ, 0), 3 smooth sign tanh(u/θ)). The output o is g w (``mode`` 0: a low-pass with
+static gain g) or g (w - L(u)) (``mode`` 1: the transient part only, zero in steady state, so the
+plateaus and stage 1 are untouched); it acts on the force (``placement`` 0: F += o [N]) or on the flow
+path (1: Q += o [m^3/s]). g is in output units per driver unit; the structure parameters (driver, law,
+mode, placement) are fixed by the diagnosis, not fitted. It starts at rest at its input:
+w = L(u(t0)), dw/dt = 0.
 """
 
 from __future__ import annotations
@@ -23,13 +25,14 @@ from numba import njit
 from bayesdamper.physics.effects.base import Effect, EffectParam
 from bayesdamper.physics.effects.signals import DP, QO, VP, YP, Q
 
-__all__ = ["DRIVERS", "EFFECT", "LAWS", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "initial",
+__all__ = ["DRIVERS", "EFFECT", "LAWS", "MODES", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "initial",
            "state_atol"]
 
 #: Codes of the structure parameters (names used in reports).
 DRIVERS = ("dp", "q", "y", "v")
 LAWS = ("linear", "abs", "deadzone", "sign")
 PLACEMENTS = ("force", "flow")
+MODES = ("low-pass", "transient")
 #: States: filter output w and its rate (driver units, per second).
 STATES = ("w", "w_rate")
 
@@ -47,6 +50,8 @@ EFFECT = Effect(
         EffectParam("law", "-", 0.0, 3.0, 0.0, False, "law code (0 linear, 1 |u|, 2 dead zone, 3 sign)",
                     optional=True),
         EffectParam("placement", "-", 0.0, 1.0, 0.0, False, "0 force output, 1 flow path", optional=True),
+        EffectParam("mode", "-", 0.0, 1.0, 0.0, False, "0 low-pass output g w, 1 transient output g (w - L(u))",
+                    optional=True),
     ),
 )
 
@@ -66,15 +71,20 @@ def _input(sig, p):
 
 
 @njit(cache=True, error_model="numpy")
+def _output(sig, z, p):
+    return p[0] * (z[0] - _input(sig, p)) if int(p[7]) == 1 else p[0] * z[0]
+
+
+@njit(cache=True, error_model="numpy")
 def flow(sig, z, p, dz):
-    """Q + g w on the flow path (placement 1)."""
-    return sig[Q] + p[0] * z[0] if int(p[6]) == 1 else sig[Q]
+    """Q + o on the flow path (placement 1)."""
+    return sig[Q] + _output(sig, z, p) if int(p[6]) == 1 else sig[Q]
 
 
 @njit(cache=True, error_model="numpy")
 def force(sig, z, p):
-    """g w on the force (placement 0)."""
-    return p[0] * z[0] if int(p[6]) == 0 else 0.0
+    """o on the force (placement 0)."""
+    return _output(sig, z, p) if int(p[6]) == 0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")
