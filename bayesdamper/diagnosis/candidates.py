@@ -22,7 +22,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import minimize, minimize_scalar
+from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.residual import _lag1
@@ -34,30 +34,52 @@ INFEASIBLE = 1e12
 _PROBLEMS: list = []
 
 
+#: Search box of the per-transient (log α_V, log p_R) re-fit.
+_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
+
+
 def _inner_fit(args):
-    """Least-squares (α_V, p_R) of one transient for a given effect vector (worker task)."""
+    """Least-squares (α_V, p_R) of one transient for a given effect set (worker task).
+
+    Trust-region least squares (scipy ``least_squares``, ``trf``, forward differences in log space) from the
+    warm start: about 15 solves where Nelder-Mead needed about 65; a failed solve inside the search makes the
+    residual huge, and if the search itself fails Nelder-Mead finishes from the warm start.
+    """
     k, eff, flow, warm = args
     prob = _PROBLEMS[k]
     if flow is not None:
         prob = dataclasses.replace(prob, flow=flow)
     f_meas = prob.force
+    big = 1e3 * (np.abs(f_meas) + 1.0)
+
+    def resid(x):
+        f, ok = prob.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
+        return (f - f_meas) if ok and np.all(np.isfinite(f)) else big
 
     def sse(x):
-        if not (math.log(2.0) <= x[0] <= math.log(5000.0) and math.log(1e3) <= x[1] <= math.log(1e7)):
+        if not (_BOX[0][0] <= x[0] <= _BOX[1][0] and _BOX[0][1] <= x[1] <= _BOX[1][1]):
             return 1e300
-        f, ok = prob.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
-        if not ok:
-            return 1e300
-        r = f - f_meas
-        return float(r @ r)
+        r = resid(x)
+        return float(r @ r) if r is not big else 1e300
 
-    x0 = np.asarray(warm, dtype=float)
-    simplex = np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.1]])
-    res = minimize(sse, x0, method="Nelder-Mead",
-                   options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
-                            "maxiter": 150})
-    f, ok = prob.simulate_force(math.exp(res.x[0]), math.exp(res.x[1]), eff)
-    return res.x, float(res.fun), (f - f_meas) if ok else None
+    x0 = np.clip(np.asarray(warm, dtype=float), _BOX[0] + 1e-9, _BOX[1] - 1e-9)
+    try:
+        ls = least_squares(resid, x0, method="trf", bounds=_BOX, diff_step=1e-4, x_scale=1.0, xtol=1e-4,
+                           ftol=1e-7, max_nfev=40)
+        x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
+    except (ValueError, np.linalg.LinAlgError):
+        x_hat, ok_ls = x0, False
+    if not ok_ls:
+        simplex = np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.1]])
+        res = minimize(sse, x0, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
+                                "maxiter": 150})
+        x_hat = res.x
+    f, ok = prob.simulate_force(math.exp(x_hat[0]), math.exp(x_hat[1]), eff)
+    if not (ok and np.all(np.isfinite(f))):
+        return x_hat, 1e300, None
+    r = f - f_meas
+    return x_hat, float(r @ r), r
 
 
 @dataclass
@@ -82,40 +104,97 @@ class ProfileEngine:
         if self._pool is not None:
             self._pool.shutdown()
 
-    def evaluate(self, eff: np.ndarray, flow=None, keep: bool = False):
-        """Per-transient SSE [N^2] and residuals at effect vector ``eff`` (and flow coefficients)."""
-        tasks = [(k, eff, flow, self.warm[k]) for k in range(len(self.problems))]
+    def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
+        """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
+        these transients only (then the arrays are over ``idx``)."""
+        ks = range(len(self.problems)) if idx is None else [int(i) for i in idx]
+        tasks = [(k, eff, flow, self.warm[k]) for k in ks]
         if self._pool is None:
             out = [_inner_fit(t) for t in tasks]
         else:
             out = list(self._pool.map(_inner_fit, tasks, chunksize=max(1, len(tasks) // (4 * self.workers))))
         xs = np.array([o[0] for o in out])
         sse = np.array([o[1] for o in out])
-        if keep:
+        if keep and idx is None:
             self.warm = xs
         return sse, xs, [o[2] for o in out]
 
 
 @dataclass
 class CandidateFit:
-    """Outcome of fitting one candidate effect's shared parameters."""
+    """Outcome of fitting one candidate (or several jointly): shared parameters, score, per-transient state."""
 
-    effect: str
-    params: dict          # name -> {"median", "lo", "hi"} (physical units)
-    values: dict          # name -> point estimate
+    effect: str           # label; "a+b" for a pair
+    params: dict          # name -> {"median", "lo", "hi"} (physical units; "label.name" for several)
+    values: dict          # name -> point estimate (the single candidate's, structure values included)
     delta_bic: float
     j_pooled: float
     sse: np.ndarray
     warm: np.ndarray
     n_evaluations: int
+    effects: dict = dataclasses.field(default_factory=dict)   # effect -> values, every fitted effect
+    n_new: int = 0        # parameters new to the current model (the ΔBIC penalty)
+    labels: tuple = ()    # labels of the new candidates
+
+
+@dataclass(frozen=True)
+class SearchParam:
+    """One shared parameter as the profile search sees it: bounds, log scale and a fixed sign.
+
+    ``sign`` -1 searches a negative parameter on the log of its magnitude (a gain whose sign part 1 fixed).
+    """
+
+    name: str
+    lower: float
+    upper: float
+    log: bool
+    sign: float = 1.0
+
+
+@dataclass(frozen=True)
+class CandidateSpec:
+    """A candidate to fit: a registered effect, optionally with data-derived search bounds and fixed values.
+
+    Attributes
+    ----------
+    label : str
+        Name in the diagnosis (``unnamed_dynamics@force``); the effect is the part before ``@``.
+    overrides : dict
+        ``{param: SearchParam}`` replacing the registry's bounds of a required parameter.
+    extra : dict
+        ``{param: value}`` of the effect's optional parameters held fixed (a structure found by part 1).
+    reading : str
+        Physical reading for the report (default: the effect's description).
+    """
+
+    label: str
+    overrides: dict = dataclasses.field(default_factory=dict)
+    extra: dict = dataclasses.field(default_factory=dict)
+    reading: str = ""
+
+    @property
+    def effect(self) -> str:
+        return self.label.split("@", 1)[0]
+
+
+def search_params(spec: CandidateSpec) -> list[SearchParam]:
+    """The parameters the profile search varies for ``spec``: the effect's required ones, overrides applied."""
+    from bayesdamper.physics.effects import EFFECTS
+
+    out = []
+    for p in EFFECTS[spec.effect].params:
+        if p.optional:
+            continue
+        out.append(spec.overrides.get(p.name, SearchParam(p.name, p.lower, p.upper, p.log)))
+    return out
 
 
 def _transform(p, x):
-    return math.log(x) if p.log else x
+    return math.log(p.sign * x) if p.log else x
 
 
 def _untransform(p, z):
-    return math.exp(z) if p.log else z
+    return p.sign * math.exp(z) if p.log else z
 
 
 def effective_sizes(residuals: list[np.ndarray]) -> np.ndarray:
@@ -134,25 +213,59 @@ def pooled_j(residuals: list[np.ndarray], forces: list[np.ndarray]) -> float:
     return math.sqrt(num / den)
 
 
-def fit_candidate(engine: ProfileEngine, name: str, fixed: dict, current_sse: np.ndarray,
+def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict, current_sse: np.ndarray,
                   n_eff: np.ndarray, flow_for, pack) -> CandidateFit:
-    """Profile the shared parameters of effect ``name`` (others in ``fixed`` held) and score it.
+    """Profile the shared parameters of one candidate (effects in ``fixed`` held) and score it.
 
-    ``flow_for(effects) -> flow array or None`` refits stage 1 when an effect changes the plateau
-    forces (friction); ``pack(effects) -> effect vector`` builds the augmented model's vector.
+    ``name`` is a registered effect or a :class:`CandidateSpec`; ``flow_for(effects) -> flow array or None``
+    refits stage 1 when an effect changes the plateau forces (friction); ``pack(effects)`` builds what the
+    problems' ``simulate_force`` takes (:func:`bayesdamper.physics.with_effects.effect_argument`).
     """
-    from bayesdamper.physics.effects import EFFECTS
+    spec = name if isinstance(name, CandidateSpec) else CandidateSpec(name)
+    return fit_joint(engine, [spec], {}, fixed, current_sse, n_eff, flow_for, pack)
 
-    eff_def = EFFECTS[name]
-    params = [p for p in eff_def.params if not p.optional]
-    lo = np.array([_transform(p, p.lower) for p in params])
-    hi = np.array([_transform(p, p.upper) for p in params])
-    n_total = float(n_eff.sum())
+
+def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fixed: dict,
+              current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
+              idx: np.ndarray | None = None, max_iter: int | None = None) -> CandidateFit:
+    """Fit the shared parameters of several candidates jointly and score the new ones.
+
+    Parameters
+    ----------
+    specs : list of CandidateSpec
+        Candidates whose required parameters are all free (the effects already selected are re-fitted
+        with the new one: issue 10's "earlier selections re-fitted jointly in every round").
+    start : dict
+        ``{label: {param: value}}`` starting values; a candidate without one is searched on a grid first.
+    fixed : dict
+        ``{effect: {param: value}}`` held at these values.
+    current_sse, n_eff : ndarray
+        Per-transient SSE of the current model and effective sample sizes (ΔBIC, module docstring).
+    new : tuple of str, optional
+        Labels whose parameters count in the ΔBIC penalty (default: those without a start).
+    idx : ndarray of int, optional
+        Fit on these transients only (leave-velocities-out), then no interval is computed.
+    max_iter : int, optional
+        Nelder-Mead iterations (default 40).
+    """
+    groups = [(spec, search_params(spec)) for spec in specs]
+    flat = [(spec, p) for spec, ps in groups for p in ps]
+    lo = np.array([min(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])
+    hi = np.array([max(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])
+    new = tuple(new if new is not None else (s.label for s in specs if s.label not in start))
+    n_new = sum(len(ps) for spec, ps in groups if spec.label in new)
+    sel = np.arange(len(engine.problems)) if idx is None else np.asarray(idx)
+    n_total = float(n_eff[sel].sum())
+    cur = float(np.sum(current_sse[sel]))
     cache: dict = {}
 
     def effects_at(z):
         e = {k: dict(v) for k, v in fixed.items()}
-        e[name] = {p.name: _untransform(p, zi) for p, zi in zip(params, z, strict=True)}
+        i = 0
+        for spec, ps in groups:
+            e[spec.effect] = {**spec.extra, **{p.name: _untransform(p, zi) for p, zi in zip(ps, z[i:i + len(ps)],
+                                                                                          strict=True)}}
+            i += len(ps)
         return e
 
     def objective(z):
@@ -165,11 +278,20 @@ def fit_candidate(engine: ProfileEngine, name: str, fixed: dict, current_sse: np
             except BayesDamperError:  # e.g. friction larger than the plateau forces allow
                 cache[key] = INFEASIBLE
                 return cache[key]
-            sse, _, _ = engine.evaluate(pack(e), flow)
-            cache[key] = float(n_total * math.log(max(float(np.sum(sse)), 1e-300) / float(np.sum(current_sse))))
+            sse, _, _ = engine.evaluate(pack(e), flow, idx=sel)
+            cache[key] = float(n_total * math.log(max(float(np.sum(sse)), 1e-300) / cur))
         return cache[key]
 
-    if len(params) == 1:
+    # starting point: given values, and a grid over the candidates without one
+    z0 = np.zeros(len(flat))
+    grid_dims = []
+    for j, (spec, p) in enumerate(flat):
+        if spec.label in start and p.name in start[spec.label]:
+            z0[j] = np.clip(_transform(p, start[spec.label][p.name]), lo[j], hi[j])
+        else:
+            grid_dims.append(j)
+            z0[j] = 0.5 * (lo[j] + hi[j])
+    if len(flat) == 1:
         grid = np.linspace(lo[0], hi[0], GRID_POINTS)
         vals = [objective([g]) for g in grid]
         i = int(np.argmin(vals))
@@ -178,35 +300,51 @@ def fit_candidate(engine: ProfileEngine, name: str, fixed: dict, current_sse: np
                               options={"xatol": 0.01 * (hi[0] - lo[0])})
         z_hat = np.array([res.x if res.fun < vals[i] else grid[i]])
     else:
-        n_g = max(3, GRID_POINTS - 2)
-        axes = [np.linspace(lo[j], hi[j], n_g) for j in range(len(params))]
-        pts = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(params), -1).T
-        vals = [objective(p) for p in pts]
-        z0 = pts[int(np.argmin(vals))]
-        step = (hi - lo) / (n_g - 1) / 2
-        simplex = np.vstack([z0] + [z0 + np.eye(len(params))[j] * step[j] for j in range(len(params))])
-        res = minimize(objective, z0, method="Nelder-Mead",
-                       options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05, "maxiter": 30})
-        z_hat = np.clip(res.x, lo, hi) if res.fun < min(vals) else z0
+        best = z0
+        if grid_dims:
+            n_g = GRID_POINTS if len(grid_dims) == 1 else max(3, GRID_POINTS - 2)
+            axes = [np.linspace(lo[j], hi[j], n_g) for j in grid_dims]
+            pts = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(grid_dims), -1).T
+            cands = []
+            for pt in pts:
+                z = z0.copy()
+                z[grid_dims] = pt
+                cands.append(z)
+            vals = [objective(z) for z in cands]
+            best = cands[int(np.argmin(vals))]
+        step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)
+        simplex = np.vstack([best] + [best + np.eye(len(flat))[j] * step[j] for j in range(len(flat))])
+        res = minimize(objective, best, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05,
+                                "maxiter": max_iter or 40})
+        z_hat = np.clip(res.x, lo, hi) if res.fun < objective(best) else best
     d_hat = objective(z_hat)
+    e_hat = effects_at(z_hat)
+    n_evals = len(cache)
+    if idx is not None:
+        return CandidateFit("+".join(s.label for s in specs), {}, {}, float(d_hat + n_new * math.log(n_total)),
+                            float("nan"), np.array([]), np.array([]), n_evals, e_hat, n_new,
+                            tuple(s.label for s in specs if s.label in new))
     # Laplace interval on the profile log-likelihood  l(z) = -D(z)/2  (transformed scale)
     sd = []
-    for j in range(len(params)):
+    for j in range(len(flat)):
         h = 0.02 * (hi[j] - lo[j])
         zp, zm = z_hat.copy(), z_hat.copy()
         zp[j] = min(z_hat[j] + h, hi[j])
         zm[j] = max(z_hat[j] - h, lo[j])
         curv = (objective(zp) - 2 * d_hat + objective(zm)) / (0.5 * (zp[j] - zm[j])) ** 2 / 2
         sd.append(1 / math.sqrt(curv) if curv > 0 else float("inf"))
-    e_hat = effects_at(z_hat)
     sse, xs, resid = engine.evaluate(pack(e_hat), flow_for(e_hat))
     forces = [p.force for p in engine.problems]
-    j = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)
-    out_params, values = {}, {}
-    for p, z, s in zip(params, z_hat, sd, strict=True):
-        zl = max(z - 1.645 * s, lo[list(params).index(p)]) if math.isfinite(s) else lo[list(params).index(p)]
-        zh = min(z + 1.645 * s, hi[list(params).index(p)]) if math.isfinite(s) else hi[list(params).index(p)]
-        out_params[p.name] = {"median": _untransform(p, z), "lo": _untransform(p, zl), "hi": _untransform(p, zh)}
-        values[p.name] = _untransform(p, z)
-    return CandidateFit(name, out_params, values, float(d_hat + len(params) * math.log(n_total)), j,
-                        sse, xs, len(cache))
+    jp = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)
+    out_params = {}
+    for j, ((spec, p), z, s_) in enumerate(zip(flat, z_hat, sd, strict=True)):
+        zl = max(z - 1.645 * s_, lo[j]) if math.isfinite(s_) else lo[j]
+        zh = min(z + 1.645 * s_, hi[j]) if math.isfinite(s_) else hi[j]
+        ends = sorted((_untransform(p, zl), _untransform(p, zh)))
+        key = p.name if len(specs) == 1 else f"{spec.label}.{p.name}"
+        out_params[key] = {"median": _untransform(p, z), "lo": ends[0], "hi": ends[1]}
+    label = "+".join(s.label for s in specs if s.label in new) or "+".join(s.label for s in specs)
+    values = dict(e_hat[specs[-1].effect]) if len(specs) == 1 else {}
+    return CandidateFit(label, out_params, values, float(d_hat + n_new * math.log(n_total)), jp, sse, xs,
+                        len(cache), e_hat, n_new, tuple(s.label for s in specs if s.label in new))

@@ -4,8 +4,12 @@ Stated criterion: an effect is selected only when ΔBIC_eff ≤ ``SELECT_DELTA_B
 evidence on the Kass & Raftery scale; ΔBIC_eff of :mod:`bayesdamper.diagnosis.candidates`) AND it lowers
 the pooled eq. (9) error by at least ``MIN_J_REDUCTION`` (20 %): the base model is itself only an
 approximation, and with thousands of samples a smooth, tiny improvement of its mismatch is "significant"
-without being an effect worth adding. Otherwise the answer is "none". After selecting, the search repeats
-with the selected effects fixed at their estimates, until no candidate passes (at most ``MAX_ROUNDS``).
+without being an effect worth adding. Out-of-sample evidence is required too: the option's
+leave-velocities-out predictive gain over the current model must exceed ``LOVO_SE`` = 2 standard errors
+(:mod:`bayesdamper.diagnosis.attribution`), and among the options that pass, the largest gain wins. Options
+are single candidates and pairs of the best ones; every round re-fits the effects already selected jointly
+with the new ones. Otherwise the answer is "none". The search repeats until nothing passes (at most
+``MAX_ROUNDS``).
 """
 
 from __future__ import annotations
@@ -14,9 +18,12 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from bayesdamper.diagnosis.candidates import effective_sizes, fit_candidate, pooled_j
+from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
+from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j
 from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
-from bayesdamper.physics.effect_vector import pack_effects
+from bayesdamper.diagnosis.unnamed import effect_reading
+from bayesdamper.physics.compose import ComposedEffects
+from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
 SELECT_DELTA_BIC = -10.0
@@ -33,7 +40,7 @@ class FixedEffectsProblem:
 
     def __init__(self, problem, eff: np.ndarray):
         self.problem = problem
-        self.eff = np.asarray(eff, dtype=float)
+        self.eff = eff if isinstance(eff, ComposedEffects) else np.asarray(eff, dtype=float)
         self.force = problem.force
         self.time = problem.time
         self.dp0 = getattr(problem, "dp0", 0.0)
@@ -109,12 +116,28 @@ def report_text(d: dict) -> str:
             lines.append(f"Residual-{cb['driver']} cross-correlation outside its 95 % band at "
                          f"{cb['fraction_outside']:.0%} of lags before, {ca['fraction_outside']:.0%} after.")
     if d["candidates"]:
-        ranked = ", ".join(f"{c['effect']} ({c['score']:+.0f})" for c in d["candidates"])
-        lines.append(f"Candidates, first round, by delta-BIC_eff (select <= {SELECT_DELTA_BIC:g}): {ranked}.")
+        ranked = ", ".join(f"{c['effect']} ({c['score']:+.0f})" for c in d["candidates"][:8])
+        lines.append(f"Candidates, first round, by delta-BIC_eff (select <= {SELECT_DELTA_BIC:g}): {ranked}"
+                     + (f" and {len(d['candidates']) - 8} more" if len(d["candidates"]) > 8 else "") + ".")
+        if d.get("rounds"):
+            lines.append(f"Rule: {d['rounds'][0].get('rule', '')}.")
+    for r in d.get("rounds", []):
+        for c in r["candidates"]:
+            if "lovo" in c:
+                lines.append(f"  round {d['rounds'].index(r) + 1}: {c['effect']}: leave-velocities-out gain "
+                             f"{c['lovo']['gain']:+.1f} (se {c['lovo']['se']:.1f}), J {c['J_pooled']:.4f}"
+                             + (" <- selected" if c["effect"] == r.get("selected") else ""))
+            if "against_runner_up" in c:
+                a = c["against_runner_up"]
+                lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
+                             f"(se {a['se']:.1f})")
     if d["selected"]:
-        for name in d["selected"]:
-            vals = ", ".join(f"{k} = {v:.4g}" for k, v in d["selected_params"][name].items())
-            lines.append(f"Selected: {name} ({vals}): {EFFECTS[name].description}")
+        for label in d["selected"]:
+            name = label.split("@", 1)[0]
+            values = d["selected_params"][name]
+            shown = {k: v for k, v in values.items() if k not in ("driver", "law", "placement")}
+            vals = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
+            lines.append(f"Selected: {label} ({vals}): {effect_reading(label, values, EFFECTS[name].description)}")
     else:
         lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
                      f"{MIN_J_REDUCTION:.0%} reduction of the pooled J.")
@@ -129,48 +152,124 @@ def report_text(d: dict) -> str:
         lines.append(f"Median p_R: {ini['p_R_Pa'] / 1e6:.2f} MPa from starts at rest vs {rev['p_R_Pa'] / 1e6:.2f} MPa "
                      f"from reversals (alpha_V {ini['alpha_V']:.0f} vs {rev['alpha_V']:.0f}): one (alpha_V, p_R) "
                      "pair does not describe both kinds of step.")
+    split = d.get("p_R_split", {})
+    if split.get("before") and split.get("after") and d["selected"]:
+        b, a = split["before"], split["after"]
+        lines.append(f"p_R split (rest vs reversal): before {b['initial_Pa'] / 1e6:.2f} vs "
+                     f"{b['reversal_Pa'] / 1e6:.2f} MPa, after {a['initial_Pa'] / 1e6:.2f} vs "
+                     f"{a['reversal_Pa'] / 1e6:.2f} MPa: "
+                     + ("closes" if a["agrees"] else "does not close") + ".")
     lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f}.")
     return "\n".join(lines)
 
 
-def select_effects(engine, names: list[str], forces: list[np.ndarray], flow_for, progress) -> tuple[list, dict, list]:
-    """The select-and-refit loop of the stated criterion (module docstring).
+#: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
+PAIR_FROM = 3
+#: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
+LOVO_OPTIONS = 3
+#: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality).
+LOVO_SE = 2.0
 
-    ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine` over the transients; ``names``:
-    candidate effects; ``forces``: the measured forces; ``flow_for(fixed)``: flow coefficients to use with
-    the effects ``fixed`` (None keeps stage 1's). Returns ``(selected, fixed, rounds)``: the selected effects
-    in order, their parameter values, and every round's ranked candidates.
+
+def _option_row(fit, j_cur: float) -> dict:
+    return {"effect": fit.effect, "score": fit.delta_bic, "criterion": "delta_BIC_eff", "J_pooled": fit.j_pooled,
+            "J_reduction": 1.0 - fit.j_pooled / j_cur, "params": fit.params,
+            "supported": bool(fit.delta_bic <= SELECT_DELTA_BIC and fit.j_pooled <= (1 - MIN_J_REDUCTION) * j_cur),
+            "n_profile_evaluations": fit.n_evaluations, "pair": "+" in fit.effect}
+
+
+def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, progress,
+                   velocities: list[float] | None = None) -> tuple[list, dict, list]:
+    """The select-and-refit loop (module docstring of :mod:`bayesdamper.diagnosis.attribution` for the evidence).
+
+    Each round: every remaining candidate is fitted together with the effects already selected (those
+    re-fitted jointly); pairs of the :data:`PAIR_FROM` best new candidates are fitted jointly too. An option
+    (single or pair) is *supported* by the present criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it
+    lowers the pooled J by >= :data:`MIN_J_REDUCTION`. For the :data:`LOVO_OPTIONS` best options by
+    ΔBIC_eff the leave-velocities-out gain over the current model is computed; the rule selects, among the
+    supported options whose gain exceeds :data:`LOVO_SE` standard errors, the one with the largest gain.
+    Otherwise the round ends with "none".
+
+    ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine`; ``names``: effect names or
+    :class:`~bayesdamper.diagnosis.candidates.CandidateSpec`; ``forces``: the measured forces;
+    ``flow_for(fixed)``: flow coefficients for the effects ``fixed`` (None keeps stage 1's); ``velocities``:
+    the transients' test speeds (the folds; without them the out-of-sample evidence is skipped).
+    Returns ``(selected labels, {effect: values}, rounds)``.
     """
-    sse, xs, resid = engine.evaluate(pack_effects({}), None, keep=True)
+    specs = {(n.label if isinstance(n, CandidateSpec) else n): (n if isinstance(n, CandidateSpec) else CandidateSpec(n))
+             for n in names}
+    sse, xs, resid = engine.evaluate(effect_argument({}), None, keep=True)
     current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     selected: list[str] = []
+    sel_specs: list[CandidateSpec] = []
     fixed: dict = {}
     rounds = []
-    remaining = list(names)
+    remaining = list(specs)
+    folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
     for rnd in range(MAX_ROUNDS):
         if not remaining:
             break
         n_eff = effective_sizes(current["resid"])
-        fits = []
-        for name in remaining:
-            progress(f"diagnose: round {rnd + 1}, fitting {name}")
-            fits.append(fit_candidate(engine, name, fixed, current["sse"], n_eff, flow_for, pack_effects))
-            progress.advance()
-        fits.sort(key=lambda c: c.delta_bic)
         j_cur = pooled_j(current["resid"], forces)
-        rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": [
-            {"effect": c.effect, "score": c.delta_bic, "criterion": "delta_BIC_eff", "J_pooled": c.j_pooled,
-             "J_reduction": 1.0 - c.j_pooled / j_cur, "params": c.params,
-             "supported": bool(c.delta_bic <= SELECT_DELTA_BIC and c.j_pooled <= (1 - MIN_J_REDUCTION) * j_cur),
-             "n_profile_evaluations": c.n_evaluations} for c in fits]})
-        best = next((c for c in rounds[-1]["candidates"] if c["supported"]), None)
+        start = {sp.label: fixed[sp.effect] for sp in sel_specs}
+        fits = []
+        for label in remaining:
+            progress(f"diagnose: round {rnd + 1}, fitting {label}")
+            fits.append(fit_joint(engine, sel_specs + [specs[label]], start, {}, current["sse"], n_eff, flow_for,
+                                  effect_argument))
+            progress.advance()
+        singles = sorted(fits, key=lambda c: c.delta_bic)
+        seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
+        for i, a in enumerate(seeds):
+            for b in seeds[i + 1:]:
+                if specs[a.effect].effect == specs[b.effect].effect:
+                    continue
+                progress(f"diagnose: round {rnd + 1}, fitting the pair {a.effect} + {b.effect}")
+                st = dict(start)
+                st[a.effect] = a.effects[specs[a.effect].effect]
+                st[b.effect] = b.effects[specs[b.effect].effect]
+                fits.append(fit_joint(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {}, current["sse"],
+                                      n_eff, flow_for, effect_argument, new=(a.effect, b.effect)))
+        fits.sort(key=lambda c: c.delta_bic)
+        rows = [_option_row(c, j_cur) for c in fits]
+        lovo_cache: dict = {}
+        for row in rows:
+            row["passes"] = False
+        if folds is not None:
+            for c, row in list(zip(fits, rows, strict=True))[:LOVO_OPTIONS]:
+                progress(f"diagnose: round {rnd + 1}, leave-velocities-out evidence for {c.effect}")
+                cand = sel_specs + [specs[lab] for lab in c.labels]
+                sc = lovo_score(engine, folds, cand, c.effects, sel_specs, fixed, current["sse"], n_eff, flow_for,
+                                effect_argument, lovo_cache)
+                row["lovo"] = sc.as_dict()
+                row["_lovo"] = sc
+                row["passes"] = bool(row["supported"] and sc.gain > LOVO_SE * sc.se and sc.gain > 0)
+        else:
+            for row in rows:
+                row["passes"] = row["supported"]
+        passing = [r for r in rows if r["passes"]]
+        best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
+        scored = sorted((r for r in rows if "_lovo" in r), key=lambda r: -r["_lovo"].gain)
+        rival = next((r for r in scored if best is None or r["effect"] != best["effect"]), None)
+        if best is not None and rival is not None and "_lovo" in best:
+            best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}
+        for r in rows:
+            r.pop("_lovo", None)
+        rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": rows,
+                       "selected": best["effect"] if best else None,
+                       "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
+                               f"{MIN_J_REDUCTION:.0%}) and leave-velocities-out gain > {LOVO_SE:g} se; the "
+                               "largest gain wins"})
         if best is None:
             break
-        best = next(c for c in fits if c.effect == best["effect"])
-        selected.append(best.effect)
-        fixed[best.effect] = best.values
-        remaining.remove(best.effect)
-        engine.warm = best.warm
-        sse, xs, resid = engine.evaluate(pack_effects(fixed), flow_for(fixed), keep=True)
+        fit = next(c for c in fits if c.effect == best["effect"])
+        for lab in fit.labels:
+            selected.append(lab)
+            sel_specs.append(specs[lab])
+        fixed = {k: dict(v) for k, v in fit.effects.items()}
+        chosen = {specs[lab].effect for lab in fit.labels}
+        remaining = [n for n in remaining if specs[n].effect not in chosen]
+        engine.warm = fit.warm
+        sse, xs, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)
         current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     return selected, fixed, rounds

@@ -8,6 +8,7 @@ posteriors of an ``identify`` run of the same settings, and writes the results.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 from pathlib import Path
@@ -33,14 +34,15 @@ from bayesdamper.diagnosis.residual import (
     structure_test,
     summarise_structure,
 )
-from bayesdamper.diagnosis.signature import residual_cross_correlation, residual_signature
+from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
+from bayesdamper.diagnosis.unnamed import unnamed_candidates
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
-from bayesdamper.physics.effect_vector import pack_effects
 from bayesdamper.physics.effects import EFFECTS
-from bayesdamper.physics.with_effects import AugmentedProblem
+from bayesdamper.physics.orifice import orifice_flow_and_slope
+from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
 from bayesdamper.run.outfolder import (
     POSTERIORS_DIR,
     _load_finished,
@@ -51,6 +53,9 @@ from bayesdamper.run.outfolder import (
 from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import drift_summary, identify_all
 
+#: The generic effect: a candidate only with the structure the residual's signature found.
+GENERIC = "unnamed_dynamics"
+
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
     """Baseline results stored by ``identify`` in ``out_dir/posteriors`` under the same settings
@@ -60,6 +65,38 @@ def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int,
         return [None] * len(transients)
     fp = settings_fingerprint(fingerprint_basis(settings.as_dict(), tmax, seed, dataset_sha256))
     return [_load_finished(post_dir / f"{tr.id}.nc", tr, fp) for tr in transients]
+
+
+def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> float:
+    """rms of the residual over rms of part 1's law of its driver (the transient-mode gain scale)."""
+    fit = signature.get("fit") or {}
+    if fit.get("driver") not in ("dp", "q", "y"):
+        return float("nan")
+    u = np.concatenate([model_signals(tr, fm, area, flow)[fit["driver"]] for tr, fm in zip(transients, base_model,
+                                                                                            strict=True)])
+    th = float(fit.get("threshold") or fit.get("eps") or 0.0)
+    law = fit.get("law")
+    g = (np.abs(u) if law == "abs" else np.sign(u) * np.maximum(np.abs(u) - th, 0.0) if law == "deadzone"
+         else np.tanh(u / th) if law == "sign" and th > 0 else u)
+    r = np.concatenate(base_resid)
+    den = float(np.sqrt(np.mean(g * g)))
+    return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
+
+
+def p_r_split(entries: list[dict]) -> dict:
+    """Median p_R of starts from rest and of reversals, and whether they agree.
+
+    They agree ("closes") when the medians differ by less than the median half-width of the per-transient
+    90 % intervals of log p_R: the split is then within what a single transient resolves.
+    """
+    kinds = {k: [e for e in entries if e["kind"] == k] for k in ("initial", "reversal")}
+    if not all(kinds.values()):
+        return {}
+    med = {k: float(np.median([e["p_R_Pa"]["median"] for e in v])) for k, v in kinds.items()}
+    half = float(np.median([0.5 * (np.log(e["p_R_Pa"]["hi"]) - np.log(e["p_R_Pa"]["lo"])) for e in entries]))
+    gap = abs(math.log(med["initial"] / med["reversal"]))
+    return {"initial_Pa": med["initial"], "reversal_Pa": med["reversal"], "log_ratio": gap,
+            "median_half_width_log": half, "agrees": bool(gap < half)}
 
 
 def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
@@ -75,7 +112,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
 
     t0 = time.perf_counter()
     progress = Progress(False if quiet else None)
-    names = list(EFFECTS) if not effects else list(effects)
+    names = [n for n in EFFECTS if n != GENERIC] if not effects else list(effects)
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
@@ -141,7 +178,16 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                for name in ("alpha_V", "p_R_Pa")}
         for kind in ("initial", "reversal") if any(r.entry["kind"] == kind for r in base)}
 
-    # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient
+    # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient; the generic
+    #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
+    if not effects or GENERIC in effects:
+        names = [n for n in names if n != GENERIC]
+        dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / ds.damper.piston_area
+        c = static.coefficients.as_array()
+        slope = orifice_flow_and_slope(dp_typ, c[0], c[1], c[2], c[3])[1]
+        names += unnamed_candidates(signature, ds.damper.piston_area, float(slope),
+                                    _gain_scale(signature, transients, base_resid, base_model, ds.damper.piston_area,
+                                                static.coefficients))
     rec = {s.record.name: s for s in segs}
     aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
@@ -157,7 +203,8 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     forces = [p.force for p in aug]
     with progress.phase("diagnose: candidate effects", unit="fit"):
         try:
-            selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress)
+            selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress,
+                                                     [tr.velocity for tr in transients])
         finally:
             engine.close()
         progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
@@ -165,7 +212,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     # 3. the final model, calibrated with uncertainty like the baseline
     if selected:
         flow_final = flow_for(fixed) or static.coefficients
-        eff = pack_effects(fixed)
+        eff = effect_argument(fixed)
         final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final), eff) for a in aug]
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
                             unit="transient"):
@@ -206,6 +253,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         "selected_params": fixed,
         "final": {"J_pooled": pooled_j(final_resid, forces), "J": {e["id"]: e["J"] for e in final_entries}},
         "J_pooled_by_velocity_mm_s": per_velocity,
+        "p_R_split": {"before": p_r_split(base_entries), "after": p_r_split(final_entries)},
         "drift_before": drift_summary(base_entries, credible_mass, seed),
         "drift_after": drift_summary(final_entries, credible_mass, seed),
         "structure_before": {"summary": structure, "transients": rows},
@@ -215,7 +263,10 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                       "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs plateau noise, "
                                         f"alpha {STRUCTURE_ALPHA}"},
         "final_segments": final_entries,
-        "settings": settings.as_dict(), "seed": seed, "effects_considered": names, "provenance": prov,
+        "settings": settings.as_dict(), "seed": seed, "effects_considered": [getattr(n, "label", n) for n in names],
+        "unnamed_candidates": [{"label": n.label, "structure": n.extra, "reading": n.reading,
+                                "search": {k: [v.lower, v.upper] for k, v in n.overrides.items()}}
+                               for n in names if not isinstance(n, str)], "provenance": prov,
     }
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures

@@ -1,0 +1,115 @@
+"""Candidates for dynamics no named effect holds, built from the residual's signature (issue 10, part 1).
+
+Part 1 (:mod:`bayesdamper.diagnosis.signature`) identifies the residual's driver, static law and poles
+from the calibrated model's own signals. This module turns that into candidates of the generic effect
+:mod:`bayesdamper.physics.effects.unnamed_dynamics` — a unit-DC-gain second-order filter of the driver
+through the law — placed on the force output or on the flow path, so that an effect nobody named is
+added to the model, fitted with intervals and reported like any other.
+
+Two output modes are tried on each placement: the low-pass g w (its static gain moves the plateaus, so
+it suits a residual that does not settle) and the transient g (w - L(u)) (zero in steady state: dynamics
+that the plateaus, hence stage 1, cannot see — the usual case for a residual after a velocity step).
+Search bounds come from the signature: the natural frequency within a factor 2 of the identified one,
+the damping within a factor 4; the low-pass gain's magnitude within a factor 30 of the identified DC
+gain with its sign held; the transient gain signed, up to 30 times the ratio of the residual's rms to
+the law's rms. On the flow path a force gain is converted with the small-signal relation
+ΔF ≈ -A_P ΔQ / (dQ_O/dΔp) at the median |Δp| of the transients (the orifice's static stiffness).
+Real poles map to an overdamped pair: f = 1/(2π sqrt(τ_1 τ_2)), ζ = (τ_1 + τ_2)/(2 sqrt(τ_1 τ_2)).
+"""
+
+from __future__ import annotations
+
+import math
+
+from bayesdamper.diagnosis.candidates import CandidateSpec, SearchParam
+from bayesdamper.physics.effects import unnamed_dynamics as _ud
+
+__all__ = ["effect_reading", "unnamed_candidates"]
+
+#: The signature's drivers the generic effect can take (time since the step is no model signal).
+_DRIVER_CODE = {"dp": 0, "q": 1, "y": 2}
+_LAW_CODE = {"linear": 0, "abs": 1, "deadzone": 2, "sign": 3}
+_DRIVER_TEXT = {"dp": "Δp", "q": "the orifice flow", "y": "the piston displacement", "v": "the piston velocity"}
+_LAW_TEXT = {"linear": "", "abs": " (magnitude)", "deadzone": " (dead zone)", "sign": " (sign)"}
+#: Factors of the search boxes around part 1's estimates (module docstring).
+FREQ_FACTOR, DAMPING_FACTOR, GAIN_FACTOR = 2.0, 4.0, 30.0
+
+
+def _second_order(poles: list[dict]) -> tuple[float, float] | None:
+    """(f [Hz], ζ) of the dominant pair of part 1's poles: the first complex pole, else two real ones."""
+    for p in poles:
+        if p.get("kind") == "complex" and p.get("frequency_hz"):
+            return float(p["frequency_hz"]), float(p.get("damping") or 0.2)
+    taus = sorted((float(p["time_constant_s"]) for p in poles if p.get("time_constant_s")), reverse=True)
+    if not taus:
+        return None
+    t1, t2 = (taus[0], taus[1]) if len(taus) > 1 else (taus[0], taus[0] / 10.0)
+    g = math.sqrt(t1 * t2)
+    return 1.0 / (2.0 * math.pi * g), (t1 + t2) / (2.0 * g)
+
+
+def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_scale: float) -> list[CandidateSpec]:
+    """Candidates of the generic effect from part 1's signature (empty when there is nothing to add).
+
+    Parameters
+    ----------
+    signature : dict
+        :func:`bayesdamper.diagnosis.signature.residual_signature`'s result.
+    area : float
+        A_P [m^2].
+    flow_slope : float
+        dQ_O/dΔp at the median |Δp| of the transients [m^3/(s Pa)].
+    gain_scale : float
+        rms of the residual over rms of the law applied to the driver [N per driver unit] (transient mode).
+    """
+    fit = signature.get("fit")
+    if not fit or signature.get("verdict") in (None, "none", "not identified"):
+        return []
+    driver, law = fit.get("driver"), fit.get("law")
+    if driver not in _DRIVER_CODE or law not in _LAW_CODE or not fit.get("dc_gain"):
+        return []
+    pair = _second_order(list(fit.get("poles") or []))
+    if pair is None:
+        return []
+    f, zeta = pair
+    lo_f, hi_f = max(f / FREQ_FACTOR, 0.05), min(f * FREQ_FACTOR, 200.0)
+    lo_z, hi_z = max(zeta / DAMPING_FACTOR, 0.01), min(zeta * DAMPING_FACTOR, 3.0)
+    threshold = fit.get("threshold") if law == "deadzone" else fit.get("eps") if law == "sign" else 0.0
+    extra = {"driver": float(_DRIVER_CODE[driver]), "law": float(_LAW_CODE[law]),
+             "threshold": float(threshold or 0.0)}
+    to_flow = -flow_slope / area
+    dynamics = {"natural_frequency_Hz": SearchParam("natural_frequency_Hz", lo_f, hi_f, True),
+                "damping_ratio": SearchParam("damping_ratio", lo_z, hi_z, True)}
+    out = []
+    for placement, unit in (("force", 1.0), ("flow", to_flow)):
+        where = f"acting on the {placement}" + (" path" if placement == "flow" else "")
+        for mode in _ud.MODES:
+            if mode == "low-pass":
+                gain = float(fit["dc_gain"]) * unit
+                if not (math.isfinite(gain) and gain != 0.0):
+                    continue
+                sign = math.copysign(1.0, gain)
+                g = SearchParam("gain", sign * abs(gain) / GAIN_FACTOR, sign * abs(gain) * GAIN_FACTOR, True, sign)
+            else:
+                top = GAIN_FACTOR * gain_scale * abs(unit)
+                if not (math.isfinite(top) and top > 0.0):
+                    continue
+                g = SearchParam("gain", -top, top, False)
+            code = {"placement": float(_ud.PLACEMENTS.index(placement)), "mode": float(_ud.MODES.index(mode))}
+            out.append(CandidateSpec(f"unnamed_dynamics@{placement}:{mode}", {"gain": g, **dynamics},
+                                     {**extra, **code},
+                                     f"driven by {_DRIVER_TEXT[driver]}{_LAW_TEXT[law]}, {where} ({mode})"))
+    return out
+
+
+def effect_reading(label: str, values: dict, description: str) -> str:
+    """One line on a selected effect; for the generic effect its frequency, damping, driver and placement."""
+    if not label.startswith("unnamed_dynamics"):
+        return description
+    driver = _ud.DRIVERS[int(values.get("driver", 0))]
+    law = _ud.LAWS[int(values.get("law", 0))]
+    where = _ud.PLACEMENTS[int(values.get("placement", 0))]
+    mode = _ud.MODES[int(values.get("mode", 0))]
+    return (f"unnamed dynamics: {values['natural_frequency_Hz']:.2f} Hz, damping {values['damping_ratio']:.2f}, "
+            f"driven by {_DRIVER_TEXT[driver]}{_LAW_TEXT[law]}, acting on the {where}"
+            + (" path" if where == "flow" else "") + f" ({mode})")
