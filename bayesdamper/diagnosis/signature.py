@@ -76,7 +76,7 @@ def residual_cross_correlation(transients, residuals: Sequence[np.ndarray], mode
 
 
 def residual_signature(transients, residuals: Sequence[np.ndarray], model_forces: Sequence[np.ndarray],
-                       area: float, flow) -> dict:
+                       area: float, flow, workers: int = 1) -> dict:
     """Identify the residual's dynamics (measured − model) from the calibrated model's signals.
 
     Returns
@@ -89,7 +89,7 @@ def residual_signature(transients, residuals: Sequence[np.ndarray], model_forces
     """
     sigs = _inputs(transients, residuals, model_forces, area, flow)
     try:
-        res = identify_residual_dynamics(sigs, drivers=DRIVERS)
+        res = identify_residual_dynamics(sigs, drivers=DRIVERS, workers=workers)
     except (DataError, SettingsError) as err:
         return {"verdict": "not identified", "reason": str(err)}
     d = res.as_dict()

@@ -42,7 +42,9 @@ Report
 from __future__ import annotations
 
 import math
+import multiprocessing as mp
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -288,23 +290,47 @@ def _best_threshold(sig: dict, r_list: list, idx: list[int], n: int) -> tuple[fl
     return u0, designs[u0]
 
 
-def _held_out_scores(sigs, r_dec, groups, orders, burn: int) -> list[CandidateScore]:
-    """Leave-one-group-out mean score and SE of every (driver, law, order), best first."""
+_SHARED: tuple = ()
+
+
+def _held_group(held) -> dict:
+    """Scores of every (driver, law, order) with the group ``held`` left out (worker task; data in _SHARED)."""
+    sigs, r_dec, groups, orders, burn = _SHARED
+    train = [i for i, g in enumerate(groups) if g != held]
+    test = [i for i, g in enumerate(groups) if g == held]
+    ss = sum(float(np.sum(r_dec[i][burn:] ** 2)) for i in test)
+    out = {}
+    for (k, law), sig in sigs.items():
+        for n in orders:
+            u0, d = _best_threshold(sig, r_dec, train, n)
+            if d.S is None:  # the law gives a constant input on the training data
+                continue
+            _, a, b = d.fit(n)
+            pred = {i: predict_from_equilibrium(a, b, sig[u0][i]) for i in test}
+            sse = sum(float(np.sum((r_dec[i] - pred[i])[burn:] ** 2)) for i in test)
+            out[(k, law, n)] = sse / ss if math.isfinite(sse) else math.inf
+    return out
+
+
+def _held_out_scores(sigs, r_dec, groups, orders, burn: int, workers: int = 1) -> list[CandidateScore]:
+    """Leave-one-group-out mean score and SE of every (driver, law, order), best first.
+
+    The held-out groups are independent tasks: with ``workers`` > 1 they run in forked processes."""
+    global _SHARED
     labels = sorted(set(groups))
+    _SHARED = (sigs, r_dec, groups, orders, burn)
+    try:
+        if workers > 1 and "fork" in mp.get_all_start_methods():
+            with ProcessPoolExecutor(min(workers, len(labels)), mp_context=mp.get_context("fork")) as pool:
+                results = list(pool.map(_held_group, labels))
+        else:
+            results = [_held_group(h) for h in labels]
+    finally:
+        _SHARED = ()
     by_cand: dict[tuple, dict[str, float]] = {}
-    for held in labels:
-        train = [i for i, g in enumerate(groups) if g != held]
-        test = [i for i, g in enumerate(groups) if g == held]
-        ss = sum(float(np.sum(r_dec[i][burn:] ** 2)) for i in test)
-        for (k, law), sig in sigs.items():
-            for n in orders:
-                u0, d = _best_threshold(sig, r_dec, train, n)
-                if d.S is None:  # the law gives a constant input on the training data
-                    continue
-                _, a, b = d.fit(n)
-                pred = {i: predict_from_equilibrium(a, b, sig[u0][i]) for i in test}
-                sse = sum(float(np.sum((r_dec[i] - pred[i])[burn:] ** 2)) for i in test)
-                by_cand.setdefault((k, law, n), {})[held] = sse / ss if math.isfinite(sse) else math.inf
+    for held, res in zip(labels, results, strict=True):
+        for key, v in res.items():
+            by_cand.setdefault(key, {})[held] = v
     out = []
     for (k, law, n), per_group in by_cand.items():
         v = np.array([per_group.get(g, np.inf) for g in labels])
@@ -391,6 +417,7 @@ def identify_residual_dynamics(
     rate_hz: float = DEFAULT_RATE_HZ,
     burn_in_s: float = DEFAULT_BURN_IN_S,
     level: float = DEFAULT_LEVEL,
+    workers: int = 1,
 ) -> SysIdResult:
     """Identify a low-order linear dynamic model of the residual, selected by leave-one-group-out.
 
@@ -408,6 +435,8 @@ def identify_residual_dynamics(
         Start of each held-out transient that is not scored [s].
     level : float
         Two-sided level of the reported intervals [-].
+    workers : int
+        Processes for the leave-one-group-out table (results do not depend on it).
 
     Returns
     -------
@@ -421,7 +450,8 @@ def identify_residual_dynamics(
     names, qs, dt = _prepare(transients, drivers, rate_hz)
     sigs, eps = _signals(transients, names, qs, laws)
     r_dec = [_decimate(np.asarray(t.residual, float), q) for t, q in zip(transients, qs, strict=True)]
-    table = _held_out_scores(sigs, r_dec, [t.group for t in transients], sorted(orders), round(burn_in_s / dt))
+    table = _held_out_scores(sigs, r_dec, [t.group for t in transients], sorted(orders), round(burn_in_s / dt),
+                             workers)
     chosen, runner = select(table)
     fit = _fit_report(sigs, eps[chosen.driver], r_dec, chosen, dt, level) if chosen else None
     return SysIdResult("dynamics" if chosen else "none", _summary(fit, chosen, runner), chosen, runner, fit,

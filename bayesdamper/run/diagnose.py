@@ -171,7 +171,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     base_model = [tr.force + r for tr, r in zip(transients, base_resid, strict=True)]
     with progress.phase("diagnose: residual dynamics", unit="fit"):
         signature = residual_signature(transients, [-r for r in base_resid], base_model, ds.damper.piston_area,
-                                       static.coefficients)
+                                       static.coefficients, workers)
         progress.note(signature.get("summary") or signature.get("reason", ""))
     structure["parameters_by_kind_median"] = {
         kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
