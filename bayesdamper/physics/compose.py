@@ -143,7 +143,8 @@ def kernel_source(names: tuple[str, ...]) -> str:
              "                                               QO, T, V1, V2, VA, VP, YA, YP)"]
     for r in rows:
         lines.append(f"import {r[1].__name__} as {r[0]}")
-    lines += ["", f"NS = {n_states}", "", "",
+    needs = any(hasattr(r[1], "force") for r in rows)
+    lines += ["", f"NS = {n_states}", f"FORCE_NEEDS_SIGNALS = {needs}", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
               "def _rhs(t, s, ds, sig, prm, base, ts, ys, va):",
               "    ya = ys + va * (t - ts)",

@@ -10,7 +10,8 @@ Method: RODAS4 (Hairer & Wanner; the coefficients, step control and dense output
 :mod:`bayesdamper.physics.rodas`) on the state vector (Δp, effect states...) with a forward-difference
 Jacobian and time derivative, LU with partial pivoting once per step; no step across a knot of the
 piecewise-linear displacement, and a fresh initial step at every knot. The force at an output time is
-the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it.
+the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it (or A_P
+times the dense Δp when no named effect adds a force: ``FORCE_NEEDS_SIGNALS`` false).
 """
 
 import math
@@ -299,12 +300,16 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                 t_new = tb if last else t + h
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
-                    for i in range(ns):
-                        cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
-                        xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
-                    if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va):
-                        return out, STATUS_NONFINITE
-                    out[i_out] = _force(sig, xd, prm, base)
+                    if FORCE_NEEDS_SIGNALS:
+                        for i in range(ns):
+                            cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
+                            xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
+                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va):
+                            return out, STATUS_NONFINITE
+                        out[i_out] = _force(sig, xd, prm, base)
+                    else:  # F = A_P Δp: the dense output of Δp alone
+                        cd3, cd4 = dense_coefficients(ks[0, 0], ks[1, 0], ks[2, 0], ks[3, 0], ks[4, 0])
+                        out[i_out] = base[B_AREA] * dense_value(x[0], x_new[0], cd3, cd4, s)
                     i_out += 1
                 for i in range(ns):
                     x[i] = x_new[i]
