@@ -27,7 +27,8 @@ from scipy.optimize import least_squares, minimize, minimize_scalar
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.residual import _lag1
 
-#: Grid points per shared parameter in the outer search before local refinement.
+#: Grid points of the outer search before local refinement: 6 for one new parameter, 4 per axis for two, 3 per
+#: axis for three or more (27 points: the local search refines from the best).
 GRID_POINTS = 6
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
@@ -302,7 +303,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     else:
         best = z0
         if grid_dims:
-            n_g = GRID_POINTS if len(grid_dims) == 1 else max(3, GRID_POINTS - 2)
+            n_g = GRID_POINTS if len(grid_dims) == 1 else (GRID_POINTS - 2 if len(grid_dims) == 2 else 3)
             axes = [np.linspace(lo[j], hi[j], n_g) for j in grid_dims]
             pts = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(grid_dims), -1).T
             cands = []

@@ -185,8 +185,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     Each round: every remaining candidate is fitted together with the effects already selected (those
     re-fitted jointly); pairs of the :data:`PAIR_FROM` best new candidates are fitted jointly too. An option
     (single or pair) is *supported* by the present criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it
-    lowers the pooled J by >= :data:`MIN_J_REDUCTION`. For the :data:`LOVO_OPTIONS` best options by
-    ΔBIC_eff the leave-velocities-out gain over the current model is computed; the rule selects, among the
+    lowers the pooled J by >= :data:`MIN_J_REDUCTION`. For the :data:`LOVO_OPTIONS` best supported options
+    by ΔBIC_eff, and the best other option as the runner-up, the leave-velocities-out gain over the current
+    model is computed (nothing when no option is supported); the rule selects, among the
     supported options whose gain exceeds :data:`LOVO_SE` standard errors, the one with the largest gain.
     Otherwise the round ends with "none".
 
@@ -235,8 +236,11 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         lovo_cache: dict = {}
         for row in rows:
             row["passes"] = False
-        if folds is not None:
-            for c, row in list(zip(fits, rows, strict=True))[:LOVO_OPTIONS]:
+        if folds is not None and any(r["supported"] for r in rows):
+            # the best supported options, and the best other option as the runner-up
+            chosen = [i for i, r in enumerate(rows) if r["supported"]][:LOVO_OPTIONS]
+            chosen += [next((i for i in range(len(rows)) if i not in chosen), None)]
+            for c, row in [(fits[i], rows[i]) for i in chosen if i is not None]:
                 progress(f"diagnose: round {rnd + 1}, leave-velocities-out evidence for {c.effect}")
                 cand = sel_specs + [specs[lab] for lab in c.labels]
                 sc = lovo_score(engine, folds, cand, c.effects, sel_specs, fixed, current["sse"], n_eff, flow_for,
