@@ -49,6 +49,8 @@ from bayesdamper.physics.effects import signals as _signals
 __all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "solve_composed"]
 
 _PREFIX = "bayesdamper_kernel_"
+#: The solver half, read once at import so that every kernel of a process is generated from the same text.
+_TEMPLATE = inspect.getsource(composed_template)
 
 
 @dataclass(frozen=True, eq=False)
@@ -260,7 +262,7 @@ def kernel_source(names: tuple[str, ...]) -> str:
                 raise SettingsError(f"effect {r[1].EFFECT.name}: STATE_ATOL needs one value per state")
             body += [f"    out[{r[2] + i}] = {c!r}" for i, c in enumerate(consts)]
     lines += body or ["    return"]
-    return inspect.getsource(composed_template) + "\n".join(lines) + "\n"
+    return _TEMPLATE + "\n".join(lines) + "\n"
 
 
 def _cache_dir() -> Path:
