@@ -235,3 +235,12 @@ def test_saturating_static_characteristic_fails_before_anything_is_written(tmp_p
     assert proc.returncode == 2
     assert_clean_error(proc, str(data), "orifice law")
     assert not out.exists()  # not even run.json
+
+
+def test_diagnose_whole_records_refuse_composed_only_effects(tmp_path):
+    """Whole records run on the fixed-vector kernel: an effect of the composed kernel is a clean error, and
+    no output folder is made."""
+    out = tmp_path / "out"
+    proc = run("diagnose", Path(RIG_A).parent / "lab-MR", "--out", out, "--effects", "poppet_valve,friction")
+    assert_clean_error(proc, "poppet_valve", "triangular tests only")
+    assert not out.exists()

@@ -137,6 +137,10 @@ def run_whole_diagnosis(plan, out: str, *, seed: int = 0, effects: list[str] | N
             raise SettingsError(f"--tests: no record(s) named {', '.join(sorted(missing))} in {ds.path}")
         windows = [w for w in windows if w.test in tests]
     # whole records run on the spline-input kernel of the fixed effect vector
+    other = [e for e in (effects or []) if e not in VECTOR_EFFECTS]
+    if other:
+        raise SettingsError(f"--effects: {', '.join(other)} run on triangular tests only; whole records take "
+                            f"{', '.join(VECTOR_EFFECTS)}")
     candidates = [OFFSET] + (list(effects) if effects else list(VECTOR_EFFECTS))
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     out_dir = Path(out)

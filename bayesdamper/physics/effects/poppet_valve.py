@@ -13,6 +13,11 @@ p_s [Pa] over which the valve goes from closed to fully open. The path's flow is
 so on every steady plateau (x = s) it is exactly eq. (8) and the static coefficients keep their meaning;
 after a step the lift lags and may ring (pressure pulses at the valve's frequency whose size grows
 with |Δp| beyond p_c). ε is the bleed path that stays open with the valve closed.
+
+At a fixed lift the flow falls as Δp opens s, so a plateau is statically stable only while the orifice
+flow grows faster than the opening, d ln Q_O/dΔp > d ln(ε + s)/dΔp; for a quadratic orifice this is
+ε p_s > |Δp| + p_c. Beyond it (and with little damping) the valve chatters in a limit cycle, as real
+check valves with a high opening gain do, and the plateaus never settle.
 """
 
 from __future__ import annotations
