@@ -37,8 +37,8 @@ FREQ_FACTOR, DAMPING_FACTOR, GAIN_FACTOR = 2.0, 4.0, 30.0
 
 def _second_order(poles: list[dict]) -> tuple[float, float] | None:
     """(f [Hz], ζ) of the dominant pair of part 1's poles: the first complex pole, else two real ones."""
-    for p in poles:
-        if p.get("kind") == "complex" and p.get("frequency_hz"):
+    for p in poles:  # sysid's PoleEstimate: kind "oscillatory" (a pair) or "real"
+        if p.get("kind") != "real" and p.get("frequency_hz"):
             return float(p["frequency_hz"]), float(p.get("damping") or 0.2)
     taus = sorted((float(p["time_constant_s"]) for p in poles if p.get("time_constant_s")), reverse=True)
     if not taus:

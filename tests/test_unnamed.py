@@ -1,0 +1,53 @@
+"""Candidates of the generic effect from part 1's signature: structure and search boxes."""
+
+import math
+
+import pytest
+
+from bayesdamper.diagnosis.unnamed import effect_reading, unnamed_candidates
+from bayesdamper.physics.effects import EFFECTS
+
+#: A signature as diagnose stores it (rig-A's: a 1.76 Hz pair and two real poles, Δp through a dead zone).
+SIGNATURE = {"verdict": "dynamics", "fit": {
+    "driver": "dp", "law": "deadzone", "threshold": 3.4e5, "eps": None, "dc_gain": -3.6e-5,
+    "poles": [{"kind": "oscillatory", "frequency_hz": 1.76, "damping": 0.14},
+              {"kind": "real", "time_constant_s": 0.66}, {"kind": "real", "time_constant_s": 0.035}]}}
+
+
+def test_candidates_take_the_oscillatory_pair_and_the_structure():
+    specs = unnamed_candidates(SIGNATURE, 4.2e-3, 5e-12, 2e-3)
+    assert {s.label for s in specs} == {"unnamed_dynamics@force:low-pass", "unnamed_dynamics@force:transient",
+                                        "unnamed_dynamics@flow:low-pass", "unnamed_dynamics@flow:transient"}
+    for s in specs:
+        f = s.overrides["natural_frequency_Hz"]
+        z = s.overrides["damping_ratio"]
+        assert f.lower == pytest.approx(0.88) and f.upper == pytest.approx(3.52)
+        assert z.lower == pytest.approx(0.035) and z.upper == pytest.approx(0.56)
+        assert s.extra["driver"] == 0.0 and s.extra["law"] == 2.0 and s.extra["threshold"] == 3.4e5
+        EFFECTS["unnamed_dynamics"].complete(s.extra)  # admissible structure values
+    low = next(s for s in specs if s.label == "unnamed_dynamics@force:low-pass").overrides["gain"]
+    assert low.sign == -1.0 and low.log and math.isclose(low.lower, -3.6e-5 / 30)
+    tr = next(s for s in specs if s.label == "unnamed_dynamics@force:transient").overrides["gain"]
+    assert not tr.log and tr.lower == -tr.upper == pytest.approx(-30 * 2e-3)
+    flow = next(s for s in specs if s.label == "unnamed_dynamics@flow:low-pass").overrides["gain"]
+    assert flow.sign == 1.0  # -A ΔQ / slope = ΔF: a negative force gain is a positive flow gain
+
+
+def test_real_poles_make_an_overdamped_pair_and_none_gives_nothing():
+    sig = {"verdict": "dynamics", "fit": {**SIGNATURE["fit"], "poles": [{"kind": "real", "time_constant_s": 0.5},
+                                                                       {"kind": "real", "time_constant_s": 0.02}]}}
+    spec = unnamed_candidates(sig, 4.2e-3, 5e-12, 2e-3)[0]
+    f = math.sqrt(spec.overrides["natural_frequency_Hz"].lower * spec.overrides["natural_frequency_Hz"].upper)
+    assert f == pytest.approx(1 / (2 * math.pi * math.sqrt(0.5 * 0.02)))
+    assert unnamed_candidates({"verdict": "none", "fit": None}, 4.2e-3, 5e-12, 2e-3) == []
+    assert unnamed_candidates({"verdict": "dynamics", "fit": {**SIGNATURE["fit"], "driver": "tau"}}, 4.2e-3, 5e-12,
+                              2e-3) == []
+
+
+def test_reading_names_frequency_damping_driver_and_placement():
+    text = effect_reading("unnamed_dynamics@force:transient",
+                          {"natural_frequency_Hz": 1.7, "damping_ratio": 0.25, "driver": 0, "law": 2, "placement": 0,
+                           "mode": 1}, "")
+    assert text == ("unnamed dynamics: 1.70 Hz, damping 0.25, driven by Δp (dead zone), acting on the force "
+                    "(transient)")
+    assert effect_reading("friction", {}, "seal friction") == "seal friction"
