@@ -270,8 +270,8 @@ class _Model:
             p1, p2 = p_mean + 0.5 * dp, p_mean - 0.5 * dp
             b1 = self.bulk(max(p1, ACCUMULATOR_P_FLOOR))
             b2 = self.bulk(max(p2, ACCUMULATOR_P_FLOOR))
-            d1 = b1 / vol1 * (q_piston - q + g * (p_a - p1))
-            d2 = b2 / vol2 * (-q_piston + q + g * (p_a - p2))
+            d1 = b1 / vol1 * (q_piston - q + g * max(p_a - p1, 0.0))  # refill through check valves
+            d2 = b2 / vol2 * (-q_piston + q + g * max(p_a - p2, 0.0))
             dx[0] = d1 - d2
             dx[idx["accumulator"]] = 0.5 * (d1 + d2)
         else:
@@ -309,7 +309,7 @@ class _Model:
         if "poppet_valve" in fx:
             x[idx["poppet_valve"]] = self.opening(dp0)
         if "accumulator" in fx:
-            x[idx["accumulator"]] = fx["accumulator"]["charge_pressure_Pa"]
+            x[idx["accumulator"]] = fx["accumulator"]["charge_pressure_Pa"] + 0.5 * abs(dp0)  # unloaded at p_a
         if "fluid_inertance" in fx:
             x[idx["fluid_inertance"]] = orifice_flow(dp0, self.flow)  # steady: Δp_O(Q_L) = Δp0
         if "unnamed_dynamics" in fx:

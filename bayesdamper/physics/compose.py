@@ -51,6 +51,11 @@ __all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "solve_compo
 _PREFIX = "bayesdamper_kernel_"
 #: The solver half, read once at import so that every kernel of a process is generated from the same text.
 _TEMPLATE = inspect.getsource(composed_template)
+#: Digests of the effect modules and the signal protocol as this process loaded them: a kernel's file name
+#: depends on the code the process compiles, even if a file changes on disk while it runs.
+_DIGESTS = {name: hashlib.sha256(Path(inspect.getfile(mod)).read_bytes()).hexdigest()
+            for name, mod in EFFECT_MODULES.items()}
+_DIGESTS[""] = hashlib.sha256(Path(inspect.getfile(_signals)).read_bytes()).hexdigest()
 
 
 @dataclass(frozen=True, eq=False)
@@ -284,10 +289,8 @@ def kernel(names: tuple[str, ...]):
     src = kernel_source(names)
     digest = hashlib.sha256()
     digest.update(src.encode())
-    for name in names:
-        digest.update(Path(inspect.getfile(EFFECT_MODULES[name])).read_bytes())
-    for mod in (_signals,):
-        digest.update(Path(inspect.getfile(mod)).read_bytes())
+    for name in (*names, ""):
+        digest.update(_DIGESTS[name].encode())
     digest.update(numba.__version__.encode())
     mod_name = _PREFIX + digest.hexdigest()[:20]
     if mod_name in sys.modules:
