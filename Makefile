@@ -29,6 +29,10 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow
 
+# The confusion table of the closed loop on independent reference data (one diagnose per case; long).
+test-confusion: $(STAMP)
+	$(PY) -m pytest -q -s -m confusion tests/test_confusion.py
+
 lint: $(STAMP)
 	$(VENV)/bin/ruff check bayesdamper tests benchmarks analyses
 

@@ -43,7 +43,6 @@ CASES = {
                                                           "viscous_Ns_per_m": 10.0},
                                         "command_displacement": {"bandwidth_Hz": 4.0, "damping_ratio": 0.3}}, 1.25),
     "servo, more reversals": ({"command_displacement": {"bandwidth_Hz": 6.0, "damping_ratio": 0.25}}, 2.25),
-    "control, more reversals": ({}, 2.25),
 }
 
 
@@ -67,7 +66,7 @@ def _families(labels) -> set:
     return {FAMILY[lab.split("@", 1)[0]] for lab in labels}
 
 
-@pytest.mark.slow
+@pytest.mark.confusion
 @pytest.mark.parametrize("case", list(CASES))
 def test_confusion_on_reference_data(case, tmp_path):
     from bayesdamper.run.diagnose import run_diagnosis

@@ -88,8 +88,7 @@ DEADZONE_COMPLEXITY = 0.5
 MIN_RELATIVE_GAIN = 0.02
 TINY = 1e-12
 DEFAULT_LEVEL = 0.90
-#: Shortest decimated transient [samples].
-MIN_SAMPLES = 20
+MIN_SAMPLES = 20  #: shortest decimated transient [samples]
 #: z of the cross-correlation band (95 % under independence); Bartlett's sum runs to this fraction of
 #: the shortest transient.
 BAND_Z = 1.96
@@ -290,7 +289,7 @@ def _best_threshold(sig: dict, r_list: list, idx: list[int], n: int) -> tuple[fl
     return u0, designs[u0]
 
 
-_SHARED: tuple = ()
+_SHARED: tuple = ()  # the table's inputs, inherited by forked workers
 
 
 def _held_group(held) -> dict:
@@ -313,18 +312,16 @@ def _held_group(held) -> dict:
 
 
 def _held_out_scores(sigs, r_dec, groups, orders, burn: int, workers: int = 1) -> list[CandidateScore]:
-    """Leave-one-group-out mean score and SE of every (driver, law, order), best first.
-
-    The held-out groups are independent tasks: with ``workers`` > 1 they run in forked processes."""
+    """Leave-one-group-out mean score and SE of every (driver, law, order), best first (held-out groups in
+    forked processes with ``workers`` > 1)."""
     global _SHARED
-    labels = sorted(set(groups))
-    _SHARED = (sigs, r_dec, groups, orders, burn)
+    labels, _SHARED = sorted(set(groups)), (sigs, r_dec, groups, orders, burn)
     try:
         if workers > 1 and "fork" in mp.get_all_start_methods():
             with ProcessPoolExecutor(min(workers, len(labels)), mp_context=mp.get_context("fork")) as pool:
                 results = list(pool.map(_held_group, labels))
         else:
-            results = [_held_group(h) for h in labels]
+            results = list(map(_held_group, labels))
     finally:
         _SHARED = ()
     by_cand: dict[tuple, dict[str, float]] = {}
