@@ -5,8 +5,9 @@ evidence on the Kass & Raftery scale; ΔBIC_eff of :mod:`bayesdamper.diagnosis.c
 the pooled eq. (9) error by at least ``MIN_J_REDUCTION`` (20 %): the base model is itself only an
 approximation, and with thousands of samples a smooth, tiny improvement of its mismatch is "significant"
 without being an effect worth adding. Out-of-sample evidence is required too: the option's
-leave-velocities-out predictive gain over the current model must exceed ``LOVO_SE`` = 2 standard errors
-(:mod:`bayesdamper.diagnosis.attribution`), and among the options that pass, the largest gain wins. Options
+leave-velocities-out predictive gain over the current model must be positive in every held-out fold and,
+with at least ``LOVO_MIN_FOLDS_FOR_SE`` folds, exceed ``LOVO_SE`` = 2 standard errors
+(:mod:`bayesdamper.diagnosis.attribution`); among the options that pass, the largest gain wins. Options
 are single candidates and pairs of the best ones; every round re-fits the effects already selected jointly
 with the new ones. Otherwise the answer is "none". The search repeats until nothing passes (at most
 ``MAX_ROUNDS``).
@@ -167,8 +168,18 @@ def report_text(d: dict) -> str:
 PAIR_FROM = 3
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
 LOVO_OPTIONS = 3
-#: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality).
+#: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality) ...
 LOVO_SE = 2.0
+#: ... when there are at least this many folds; with fewer, the fold variance has too few degrees of freedom
+#: to be a normal standard error (3 folds: 2 df), and the candidate must instead predict every held-out
+#: fold better than the current model. Every fold better is required in both cases.
+LOVO_MIN_FOLDS_FOR_SE = 4
+
+
+def lovo_passes(sc) -> bool:
+    """The out-of-sample part of the rule: every held-out fold better, and gain > LOVO_SE se with enough folds."""
+    every = all(d > 0 for d in sc.per_fold)
+    return bool(every and (len(sc.per_fold) < LOVO_MIN_FOLDS_FOR_SE or sc.gain > LOVO_SE * sc.se))
 
 
 def _option_row(fit, j_cur: float) -> dict:
@@ -247,7 +258,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                 effect_argument, lovo_cache)
                 row["lovo"] = sc.as_dict()
                 row["_lovo"] = sc
-                row["passes"] = bool(row["supported"] and sc.gain > LOVO_SE * sc.se and sc.gain > 0)
+                row["passes"] = bool(row["supported"] and lovo_passes(sc))
         else:
             for row in rows:
                 row["passes"] = row["supported"]
@@ -262,7 +273,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": rows,
                        "selected": best["effect"] if best else None,
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
-                               f"{MIN_J_REDUCTION:.0%}) and leave-velocities-out gain > {LOVO_SE:g} se; the "
+                               f"{MIN_J_REDUCTION:.0%}), every held-out speed fold better and (with >= "
+                               f"{LOVO_MIN_FOLDS_FOR_SE} folds) leave-velocities-out gain > {LOVO_SE:g} se; the "
                                "largest gain wins"})
         if best is None:
             break
