@@ -29,6 +29,8 @@ __all__ = ["MAX_FOLDS", "LovoScore", "velocity_folds", "lovo_score", "paired"]
 
 #: Largest number of folds (each a set of whole test speeds).
 MAX_FOLDS = 6
+#: Speeds closer than this are one test speed [m/s] (velocities estimated from the data differ in the last digits).
+SPEED_RESOLUTION_M_S = 1.0e-6
 #: Nelder-Mead iterations of a fold's re-fit (a local search from the full-data estimate).
 FOLD_ITER = 15
 
@@ -47,10 +49,11 @@ class LovoScore:
 
 def velocity_folds(velocities: list[float]) -> list[np.ndarray]:
     """Folds of transient indices: whole speeds, dealt round-robin over the sorted speeds."""
-    speeds = sorted({round(abs(v), 9) for v in velocities})
+    key = [round(abs(v) / SPEED_RESOLUTION_M_S) for v in velocities]
+    speeds = sorted(set(key))
     n = min(len(speeds), MAX_FOLDS)
     fold_of = {s: i % n for i, s in enumerate(speeds)}
-    return [np.array([k for k, v in enumerate(velocities) if fold_of[round(abs(v), 9)] == g]) for g in range(n)]
+    return [np.array([k for k, s in enumerate(key) if fold_of[s] == g]) for g in range(n)]
 
 
 def _fold_sse(engine, specs, values, fixed, current_sse, n_eff, flow_for, pack, train, test):

@@ -83,6 +83,14 @@ def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> fl
     return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
 
 
+def _test_speeds(transients) -> list[float]:
+    """Each transient's test speed: the median |v| of its record's transients (the folds' unit)."""
+    by_test: dict[str, list[float]] = {}
+    for tr in transients:
+        by_test.setdefault(tr.test, []).append(abs(tr.velocity))
+    return [float(np.median(by_test[tr.test])) for tr in transients]
+
+
 def p_r_split(entries: list[dict]) -> dict:
     """Median p_R of starts from rest and of reversals, and whether they agree.
 
@@ -204,7 +212,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     with progress.phase("diagnose: candidate effects", unit="fit"):
         try:
             selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress,
-                                                     [tr.velocity for tr in transients])
+                                                     _test_speeds(transients))
         finally:
             engine.close()
         progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
