@@ -75,12 +75,8 @@ class ComposedEffects:
 
     def as_dict(self) -> dict[str, dict[str, float]]:
         """``{effect: {param: value}}``."""
-        out, i = {}, 0
-        for name in self.names:
-            params = EFFECT_MODULES[name].EFFECT.params
-            out[name] = {p.name: float(v) for p, v in zip(params, self.values[i:i + len(params)], strict=True)}
-            i += len(params)
-        return out
+        return {name: {p.name: float(v) for p, v in zip(EFFECT_MODULES[name].EFFECT.params, vals, strict=True)}
+                for name, vals in self._slices()}
 
     def transform_knots(self, kt: np.ndarray, ky: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Apply the effects' knot transforms (``knots`` hooks, e.g. backlash) to the displacement knots."""

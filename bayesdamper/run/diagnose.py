@@ -35,6 +35,7 @@ from bayesdamper.diagnosis.residual import (
     summarise_structure,
 )
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
+from bayesdamper.diagnosis.sysid import apply_law
 from bayesdamper.diagnosis.unnamed import unnamed_candidates
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
@@ -74,10 +75,7 @@ def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> fl
         return float("nan")
     u = np.concatenate([model_signals(tr, fm, area, flow)[fit["driver"]] for tr, fm in zip(transients, base_model,
                                                                                             strict=True)])
-    th = float(fit.get("threshold") or fit.get("eps") or 0.0)
-    law = fit.get("law")
-    g = (np.abs(u) if law == "abs" else np.sign(u) * np.maximum(np.abs(u) - th, 0.0) if law == "deadzone"
-         else np.tanh(u / th) if law == "sign" and th > 0 else u)
+    g = apply_law(u, fit["law"], float(fit.get("eps") or 0.0), float(fit.get("threshold") or 0.0))
     r = np.concatenate(base_resid)
     den = float(np.sqrt(np.mean(g * g)))
     return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
