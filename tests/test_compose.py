@@ -15,7 +15,16 @@ import pytest
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.physics import compose as compose_mod
 from bayesdamper.physics.augmented import solve_augmented
-from bayesdamper.physics.compose import compose, kernel_source, solve_composed
+from bayesdamper.physics.compose import (
+    L_ACTIVE,
+    L_PRM,
+    L_PRM_END,
+    L_STATE,
+    compose,
+    kernel_source,
+    layout,
+    solve_composed,
+)
 from bayesdamper.physics.effect_vector import EFFECT_SLOTS, VECTOR_EFFECTS, pack_effects
 from bayesdamper.physics.effects import EFFECT_MODULES, EFFECTS
 from bayesdamper.physics.effects.backlash import backlash_knots
@@ -77,12 +86,44 @@ def test_registry_is_every_module_with_an_effect():
     assert list(EFFECTS)[:6] == list(VECTOR_EFFECTS)
 
 
-def test_kernel_source_names_no_effect_and_calls_only_named_hooks():
-    """The composer is generic: its source names no effect; a kernel calls the hooks of its effects only."""
+def _guarded_calls(src: str) -> dict[str, set[str]]:
+    """{alias: hooks it calls} of the generated source, checking each call sits under its ``if lay[i, 0]:``."""
+    import re
+
+    calls: dict[str, set[str]] = {}
+    guard = None
+    for line in src.split("# " + "-" * 77 + " generated model half")[1].splitlines():
+        g = re.match(r"    if lay\[(\d+), 0\]:", line)
+        if g:
+            guard = f"_e{g.group(1)}"
+            continue
+        for alias, hook in re.findall(r"(_e\d+)\.(\w+)\(", line):
+            assert line.startswith("        ") and alias == guard, line
+            calls.setdefault(alias, set()).add(hook)
+        if not line.startswith("        "):
+            guard = None
+    return calls
+
+
+def test_kernel_source_names_no_effect_and_guards_every_hook():
+    """The composer is generic: its source names no effect; the one kernel calls each effect's hooks only
+    when the runtime layout marks it active, and the layout gives each active effect its own states."""
     text = Path(compose_mod.__file__).read_text()
     for name in EFFECTS:
         assert f'"{name}"' not in text and f"'{name}'" not in text
-    src = kernel_source(("friction", "valve_dynamics", "inertia"))
-    assert "_e0.force(" in src and "_e1.flow(" in src and "_e2.derivatives(" in src and "_e2.force(" in src
-    assert "_e0.flow(" not in src and "_e1.force(" not in src and "NS = 3" in src
-    assert "loaded = _bulk" in src  # eq. (6): no effect sets the absolute pressures
+    calls = _guarded_calls(kernel_source())
+    names = list(EFFECT_MODULES)
+    for i, name in enumerate(names):
+        mod = EFFECT_MODULES[name]
+        hooks = {h for h in ("displacement", "flow", "pressures", "chamber_flows", "derivatives", "force", "initial",
+                             "state_atol") if hasattr(mod, h)}
+        assert calls.get(f"_e{i}", set()) == hooks, name
+    lay, n_states = layout(("friction", "valve_dynamics", "inertia"))
+    active = [names[i] for i in np.flatnonzero(lay[:, L_ACTIVE])]
+    assert active == ["friction", "valve_dynamics", "inertia"]
+    sizes = {n: len(getattr(EFFECT_MODULES[n], "STATES", ())) for n in active}
+    assert n_states == 1 + sum(sizes.values())
+    offsets = sorted((lay[names.index(n), L_STATE], sizes[n]) for n in active if sizes[n])
+    assert offsets[0][0] == 1 and all(a + k == b for (a, k), (b, _) in zip(offsets[:-1], offsets[1:], strict=True))
+    n_par = [len(EFFECTS[n].params) for n in active]
+    assert [lay[names.index(n), L_PRM_END] - lay[names.index(n), L_PRM] for n in active] == n_par

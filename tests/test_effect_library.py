@@ -16,9 +16,9 @@ from reference_effects import simulate_effects
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
-from bayesdamper.physics.compose import ComposedEffects, compose, kernel_source, solve_composed
+from bayesdamper.physics.compose import L_ACTIVE, ComposedEffects, compose, kernel_source, layout, solve_composed
 from bayesdamper.physics.effect_vector import pack_effects
-from bayesdamper.physics.effects import EFFECT_NAMES, EFFECTS
+from bayesdamper.physics.effects import EFFECT_MODULES, EFFECT_NAMES, EFFECTS
 from bayesdamper.physics.excitation import PiecewiseLinear
 from bayesdamper.physics.rodas import STATUS_OK
 from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument, simulate_augmented
@@ -142,10 +142,11 @@ def test_effect_argument_dispatch_and_round_trip():
 def test_the_library_holds_what_the_issue_names():
     assert {"poppet_valve", "seal_friction", "accumulator", "gas_spring", "load_cell_offset", "mains_interference",
             "command_displacement", "leakage", "unnamed_dynamics"} <= set(EFFECT_NAMES)
-    src = kernel_source(("friction", "accumulator"))
-    assert "_e0.force(" in src and "_e1.pressures(" in src and "_e1.chamber_flows(" in src
-    assert "_e0.flow(" not in src and "NS = 2" in src
-    assert "loaded = _bulk" not in src  # eq. (6) replaced by the absolute pressures
+    lay, n_states = layout(("friction", "accumulator"))
+    assert n_states == 2 and int(lay[:, L_ACTIVE].sum()) == 2  # Δp and the accumulator's mean pressure
+    src = kernel_source()
+    assert "p1, p2 = _e{}.pressures(".format(list(EFFECT_MODULES).index("accumulator")) in src
+    assert "    if absolute:" in src and "loaded = _bulk" in src  # eq. (6) only without absolute pressures
 
 
 def test_signed_and_infinite_parameters_are_checked():

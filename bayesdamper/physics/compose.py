@@ -46,7 +46,7 @@ from bayesdamper.physics import composed_template
 from bayesdamper.physics.effects import EFFECT_MODULES, complete_effects
 from bayesdamper.physics.effects import signals as _signals
 
-__all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "solve_composed"]
+__all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "layout", "solve_composed"]
 
 _PREFIX = "bayesdamper_kernel_"
 #: The solver half, read once at import so that every kernel of a process is generated from the same text.
@@ -91,6 +91,11 @@ class ComposedEffects:
         return float(sum(EFFECT_MODULES[n].compliance(p) for n, p in self._slices()
                          if hasattr(EFFECT_MODULES[n], "compliance")))
 
+    @functools.cached_property
+    def layout(self) -> np.ndarray:
+        """The kernel's runtime layout of these effects (:func:`layout`)."""
+        return layout(self.names)[0]
+
     def _slices(self):
         i = 0
         for name in self.names:
@@ -104,63 +109,88 @@ def compose(effects: Mapping[str, Mapping[str, float] | None] | None) -> Compose
     full = complete_effects(effects)
     names = tuple(n for n in EFFECT_MODULES if n in full)
     vals = [full[n][p.name] for n in names for p in EFFECT_MODULES[n].EFFECT.params]
-    return ComposedEffects(names, np.array(vals, dtype=np.float64))
+    out = ComposedEffects(names, np.array(vals, dtype=np.float64))
+    _ = out.layout  # checks the combination
+    return out
 
 
 # ----------------------------------------------------------------------------- code generation
-def _layout(names: tuple[str, ...]):
-    """Per effect: (alias, module, state offset, n states, parameter start, parameter end)."""
-    rows, o, a = [], 1, 0
-    for i, name in enumerate(names):
-        mod = EFFECT_MODULES[name]
-        ns = len(getattr(mod, "STATES", ()))
+#: Columns of the layout array handed to the kernel: effect active, first state, first parameter, end.
+L_ACTIVE, L_STATE, L_PRM, L_PRM_END = range(4)
+
+
+def _rows():
+    """Per registered effect: (alias, module, its number of states)."""
+    return [(f"_e{i}", mod, len(getattr(mod, "STATES", ()))) for i, mod in enumerate(EFFECT_MODULES.values())]
+
+
+def layout(names: tuple[str, ...]) -> tuple[np.ndarray, int]:
+    """The kernel's runtime layout of the effects ``names``: an int array (one row per registered effect:
+    active, state offset, parameter start, parameter end; columns ``L_*``) and the number of states."""
+    unknown = [n for n in names if n not in EFFECT_MODULES]
+    if unknown:
+        raise SettingsError(f"unknown effect(s) {', '.join(unknown)}")
+    setting = [n for n in names if hasattr(EFFECT_MODULES[n], "pressures")]
+    if len(setting) > 1:
+        raise SettingsError("effects " + ", ".join(setting) + " all set the chamber pressures: name at most one "
+                            "of them")
+    lay = np.zeros((len(EFFECT_MODULES), 4), dtype=np.int64)
+    o, a = 1, 0
+    for i, (name, mod) in enumerate(EFFECT_MODULES.items()):
+        if name not in names:
+            continue
         npar = len(mod.EFFECT.params)
-        rows.append((f"_e{i}", mod, o, ns, a, a + npar))
-        o += ns
+        lay[i] = (1, o, a, a + npar)
+        o += len(getattr(mod, "STATES", ()))
         a += npar
-    return rows, o
+    return lay, o
 
 
-def kernel_source(names: tuple[str, ...]) -> str:
-    """Python source of the composed kernel of the effects ``names`` (in registry order)."""
-    rows, n_states = _layout(tuple(names))
-    pressure_hooks = [r for r in rows if hasattr(r[1], "pressures")]
-    if len(pressure_hooks) > 1:
-        raise SettingsError("effects " + ", ".join(r[1].EFFECT.name for r in pressure_hooks)
-                            + " all set the chamber pressures: name at most one of them")
+def kernel_source() -> str:
+    """Python source of the composed kernel: every registered effect's hooks, each called only when the
+    runtime layout (:func:`layout`) marks the effect active."""
+    rows = _rows()
 
-    def z(r):
-        return f"s[{r[2]}:{r[2] + r[3]}]"
+    def z(i, n, arr="s"):
+        return f"{arr}[lay[{i}, 1]:lay[{i}, 1] + {n}]"
 
-    def dz(r, arr="ds"):
-        return f"{arr}[{r[2]}:{r[2] + r[3]}]"
+    def p(i):
+        return f"prm[lay[{i}, 2]:lay[{i}, 3]]"
 
-    def p(r):
-        return f"prm[{r[4]}:{r[5]}]"
+    def has(mod, hook):
+        return hasattr(mod, hook)
 
-    disp = [r for r in rows if hasattr(r[1], "displacement")]
     lines = ["", "", "# " + "-" * 77 + " generated model half",
              "from bayesdamper.physics.compressibility import bulk_modulus_scalar as _bulk",
              "from bayesdamper.physics.orifice import orifice_flow as _orifice",
              "from bayesdamper.physics.effects.signals import (DDP, DP, DP1, DP2, P1, P2, PRESSURE_FLOOR_PA, Q,",
              "                                               QO, T, V1, V2, VA, VP, YA, YP)"]
-    for r in rows:
-        lines.append(f"import {r[1].__name__} as {r[0]}")
-    needs = any(hasattr(r[1], "force") for r in rows)
-    lines += ["", f"NS = {n_states}", f"FORCE_NEEDS_SIGNALS = {needs}", "", "",
+    for alias, mod, _ in rows:
+        lines.append(f"import {mod.__name__} as {alias}")
+    lines += ["", "", "@njit(cache=True)",
+              "def _n_states(lay):",
+              "    n = 1"]
+    lines += [f"    if lay[{i}, 0]:\n        n += {n}" for i, (_, _, n) in enumerate(rows) if n]
+    lines += ["    return n", "", "",
+              "@njit(cache=True)",
+              "def _force_needs_signals(lay):"]
+    lines += [f"    if lay[{i}, 0]:\n        return True" for i, (_, mod, _) in enumerate(rows) if has(mod, "force")]
+    lines += ["    return False", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
-              "def _rhs(t, s, ds, sig, prm, base, ts, ys, va):",
+              "def _rhs(t, s, ds, sig, prm, base, ts, ys, va, lay):",
               "    ya = ys + va * (t - ts)",
               "    sig[T] = t",
               "    sig[YA] = ya",
               "    sig[VA] = va",
               "    sig[YP] = ya",
               "    sig[VP] = va",
-              "    for i in range(NS):",
+              "    for i in range(ds.shape[0]):",
               "        ds[i] = 0.0"]
-    for r in disp:
-        lines += [f"    y, v = {r[0]}.displacement(sig, {z(r)}, {p(r)}, {dz(r)})",
-                  "    sig[YP] = y", "    sig[VP] = v"]
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "displacement"):
+            lines += [f"    if lay[{i}, 0]:",
+                      f"        y, v = {alias}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})",
+                      "        sig[YP] = y", "        sig[VP] = v"]
     lines += ["    dp = s[0]",
               "    sig[DP] = dp",
               "    area = base[B_AREA]",
@@ -176,29 +206,35 @@ def kernel_source(names: tuple[str, ...]) -> str:
               "    qo = _orifice(dp, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
               "    sig[QO] = qo",
               "    sig[Q] = qo"]
-    for r in rows:
-        if hasattr(r[1], "flow"):
-            lines.append(f"    sig[Q] = {r[0]}.flow(sig, {z(r)}, {p(r)}, {dz(r)})")
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "flow"):
+            lines += [f"    if lay[{i}, 0]:", f"        sig[Q] = {alias}.flow(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"]
     lines += ["    q = sig[Q]",
               "    b0 = base[B_B0]",
               "    alpha = base[B_ALPHA]",
-              "    p_r = base[B_PR]"]
-    if pressure_hooks:
-        r = pressure_hooks[0]
-        lines += [f"    p1, p2 = {r[0]}.pressures(sig, {z(r)}, {p(r)})",
-                  "    sig[P1] = p1",
-                  "    sig[P2] = p2",
-                  "    b1 = _bulk(max(p1, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
-                  "    b2 = _bulk(max(p2, PRESSURE_FLOOR_PA), b0, alpha, p_r)"]
-    else:
-        lines += ["    loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
-                  "    unloaded = _bulk(p_r, b0, alpha, p_r)",
-                  "    b1 = loaded if dp >= 0.0 else unloaded",
-                  "    b2 = unloaded if dp >= 0.0 else loaded"]
-    lines += ["    q1 = 0.0", "    q2 = 0.0"]
-    for r in rows:
-        if hasattr(r[1], "chamber_flows"):
-            lines += [f"    a1, a2 = {r[0]}.chamber_flows(sig, {z(r)}, {p(r)})", "    q1 += a1", "    q2 += a2"]
+              "    p_r = base[B_PR]",
+              "    absolute = False",
+              "    p1 = 0.0",
+              "    p2 = 0.0"]
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "pressures"):
+            lines += [f"    if lay[{i}, 0]:", f"        p1, p2 = {alias}.pressures(sig, {z(i, n)}, {p(i)})",
+                      "        absolute = True"]
+    lines += ["    if absolute:",
+              "        sig[P1] = p1",
+              "        sig[P2] = p2",
+              "        b1 = _bulk(max(p1, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
+              "        b2 = _bulk(max(p2, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
+              "    else:  # eq. (6)",
+              "        loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
+              "        unloaded = _bulk(p_r, b0, alpha, p_r)",
+              "        b1 = loaded if dp >= 0.0 else unloaded",
+              "        b2 = unloaded if dp >= 0.0 else loaded",
+              "    q1 = 0.0", "    q2 = 0.0"]
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "chamber_flows"):
+            lines += [f"    if lay[{i}, 0]:", f"        a1, a2 = {alias}.chamber_flows(sig, {z(i, n)}, {p(i)})",
+                      "        q1 += a1", "        q2 += a2"]
     lines += ["    g1 = b1 / vol1",
               "    g2 = b2 / vol2",
               "    vd = sig[VP]",
@@ -210,58 +246,61 @@ def kernel_source(names: tuple[str, ...]) -> str:
               "    sig[DP1] = g1 * (area * vp - q + q1)",
               "    sig[DP2] = g2 * (-area * vp + q + q2)",
               "    ds[0] = ddp"]
-    for r in rows:
-        if hasattr(r[1], "derivatives"):
-            lines.append(f"    {r[0]}.derivatives(sig, {z(r)}, {p(r)}, {dz(r)})")
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "derivatives"):
+            lines += [f"    if lay[{i}, 0]:", f"        {alias}.derivatives(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"]
     lines += ["    return math.isfinite(ddp)", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
-              "def _force(sig, s, prm, base):",
+              "def _force(sig, s, prm, base, lay):",
               "    f = base[B_AREA] * s[0]"]
-    for r in rows:
-        if hasattr(r[1], "force"):
-            lines.append(f"    f += {r[0]}.force(sig, {z(r)}, {p(r)})")
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "force"):
+            lines += [f"    if lay[{i}, 0]:", f"        f += {alias}.force(sig, {z(i, n)}, {p(i)})"]
     lines += ["    return f", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
-              "def _init(t0, ya0, v_prev, dp0, sig, s, prm, base):",
-              "    for i in range(NS):",
+              "def _init(t0, ya0, v_prev, dp0, sig, s, prm, base, lay):",
+              "    for i in range(s.shape[0]):",
               "        s[i] = 0.0",
               "    s[0] = dp0",
-              "    scratch = np.zeros(NS)",
+              "    scratch = np.zeros(s.shape[0])",
               "    sig[T] = t0",
               "    sig[YA] = ya0",
               "    sig[VA] = v_prev",
               "    sig[YP] = ya0",
               "    sig[VP] = v_prev",
               "    sig[DP] = dp0"]
-    for r in disp:
-        if hasattr(r[1], "initial"):
-            lines.append(f"    {r[0]}.initial(sig, {p(r)}, {z(r)})")
-        lines += [f"    y, v = {r[0]}.displacement(sig, {z(r)}, {p(r)}, {dz(r, 'scratch')})",
-                  "    sig[YP] = y", "    sig[VP] = v"]
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "displacement"):
+            lines.append(f"    if lay[{i}, 0]:")
+            if has(mod, "initial"):
+                lines.append(f"        {alias}.initial(sig, {p(i)}, {z(i, n)})")
+            lines += [f"        y, v = {alias}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})",
+                      "        sig[YP] = y", "        sig[VP] = v"]
     lines += ["    sig[YP] = sig[YP] - base[B_COMP] * base[B_AREA] * dp0",
               "    qo = _orifice(dp0, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
               "    sig[QO] = qo",
               "    sig[Q] = qo"]
-    for r in rows:
-        if hasattr(r[1], "initial") and r not in disp:
-            lines.append(f"    {r[0]}.initial(sig, {p(r)}, {z(r)})")
-    lines += ["    for i in range(NS):",
+    for i, (alias, mod, n) in enumerate(rows):
+        if has(mod, "initial") and not has(mod, "displacement"):
+            lines += [f"    if lay[{i}, 0]:", f"        {alias}.initial(sig, {p(i)}, {z(i, n)})"]
+    lines += ["    for i in range(s.shape[0]):",
               "        if not math.isfinite(s[i]):",
               "            return False",
               "    return True", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
-              "def _atol(prm, atol, out):"]
+              "def _atol(prm, atol, out, lay):"]
     body = []
-    for r in rows:
-        if r[3] == 0:
+    for i, (alias, mod, n) in enumerate(rows):
+        if n == 0:
             continue
-        if hasattr(r[1], "state_atol"):
-            body.append(f"    {r[0]}.state_atol({p(r)}, atol, out[{r[2]}:{r[2] + r[3]}])")
+        if has(mod, "state_atol"):
+            body += [f"    if lay[{i}, 0]:", f"        {alias}.state_atol({p(i)}, atol, {z(i, n, 'out')})"]
         else:
-            consts = tuple(float(c) for c in r[1].STATE_ATOL)
-            if len(consts) != r[3]:
-                raise SettingsError(f"effect {r[1].EFFECT.name}: STATE_ATOL needs one value per state")
-            body += [f"    out[{r[2] + i}] = {c!r}" for i, c in enumerate(consts)]
+            consts = tuple(float(c) for c in mod.STATE_ATOL)
+            if len(consts) != n:
+                raise SettingsError(f"effect {mod.EFFECT.name}: STATE_ATOL needs one value per state")
+            body.append(f"    if lay[{i}, 0]:")
+            body += [f"        out[lay[{i}, 1] + {j}] = {c!r}" for j, c in enumerate(consts)]
     lines += body or ["    return"]
     return _TEMPLATE + "\n".join(lines) + "\n"
 
@@ -280,12 +319,12 @@ def _cache_dir() -> Path:
 
 
 @functools.cache
-def kernel(names: tuple[str, ...]):
-    """The imported kernel module of the effects ``names`` (written to the cache on first use)."""
-    src = kernel_source(names)
+def kernel():
+    """The imported composed kernel module (written to the cache and compiled on first use, once per machine)."""
+    src = kernel_source()
     digest = hashlib.sha256()
     digest.update(src.encode())
-    for name in (*names, ""):
+    for name in (*EFFECT_MODULES, ""):
         digest.update(_DIGESTS[name].encode())
     digest.update(numba.__version__.encode())
     mod_name = _PREFIX + digest.hexdigest()[:20]
@@ -315,7 +354,7 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
     (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`).
     """
-    mod = kernel(composed.names)
+    mod = kernel()
     comp = composed.compliance()
     base = np.array([damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2,
                      damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
@@ -324,4 +363,4 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
     return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), np.ascontiguousarray(knot_t, dtype=float),
                               np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
-                              bool(from_force))
+                              bool(from_force), composed.layout)

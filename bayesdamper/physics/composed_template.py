@@ -2,16 +2,17 @@
 """The solver half of a composed kernel: :mod:`bayesdamper.physics.compose` appends the model half.
 
 This file is never imported on its own. :func:`bayesdamper.physics.compose.kernel` writes its text,
-followed by generated definitions of ``NS`` (number of states), ``_rhs``, ``_force``, ``_init`` and
-``_atol`` for one combination of effects, into a module of the kernel cache and imports that, so
-numba compiles (and caches on disk) one kernel per combination.
+followed by generated definitions of ``_n_states``, ``_force_needs_signals``, ``_rhs``, ``_force``,
+``_init`` and ``_atol`` calling the hooks of every registered effect, each only when the runtime layout
+``lay`` marks it active, into a module of the kernel cache and imports that: numba compiles (and caches on
+disk) one kernel for every combination of effects, once per machine.
 
 Method: RODAS4 (Hairer & Wanner; the coefficients, step control and dense output of
 :mod:`bayesdamper.physics.rodas`) on the state vector (Δp, effect states...) with a forward-difference
 Jacobian and time derivative, LU with partial pivoting once per step; no step across a knot of the
 piecewise-linear displacement, and a fresh initial step at every knot. The force at an output time is
 the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it (or A_P
-times the dense Δp when no named effect adds a force: ``FORCE_NEEDS_SIGNALS`` false).
+times the dense Δp when no active effect adds a force).
 """
 
 import math
@@ -97,7 +98,7 @@ def _err_norm(v, x, xn, sc_a, rtol):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force):
+def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay):
     """Force of the composed model at the sample times (module docstring).
 
     Parameters
@@ -117,6 +118,9 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         The named effects' parameters, concatenated in the kernel's order.
     rtol, atol : float
         Relative tolerance [-] and absolute tolerance of Δp [Pa] (effect states: their ``_atol``).
+    lay : ndarray (n_effects, 4) of int64
+        Which registered effects are active, their first state and their parameters' slice in ``prm``
+        (:func:`bayesdamper.physics.compose.layout`).
 
     Returns
     -------
@@ -132,7 +136,8 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
     for j in range(prm.shape[0]):
         if not math.isfinite(prm[j]) and not prm[j] == math.inf:
             return out, STATUS_BAD_INPUT
-    ns = NS
+    ns = _n_states(lay)
+    force_needs_signals = _force_needs_signals(lay)
     sig = np.full(N_SIGNALS, np.nan)
     x = np.zeros(ns)
     x_new = np.zeros(ns)
@@ -148,7 +153,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
     sc_a = np.zeros(ns)
     xd = np.zeros(ns)
     sc_a[0] = atol
-    _atol(prm, atol, sc_a)
+    _atol(prm, atol, sc_a, lay)
     t_end = t_out[n_t - 1]
     k0 = 0
     while k0 < n_k - 2 and knot_t[k0 + 1] <= t0:
@@ -159,11 +164,11 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         f_target = dp0
         dp0 = f_target / base[B_AREA]
         for _ in range(6):
-            if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base)
-                    and _rhs(t0, x, f0, sig, prm, base, t0, ya0, v_prev)):
+            if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)
+                    and _rhs(t0, x, f0, sig, prm, base, t0, ya0, v_prev, lay)):
                 return out, STATUS_NONFINITE
-            dp0 -= (_force(sig, x, prm, base) - f_target) / base[B_AREA]
-    if not (math.isfinite(dp0) and _init(t0, ya0, v_prev, dp0, sig, x, prm, base)):
+            dp0 -= (_force(sig, x, prm, base, lay) - f_target) / base[B_AREA]
+    if not (math.isfinite(dp0) and _init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)):
         return out, STATUS_NONFINITE
     i_out = 0
     n_steps = 0
@@ -173,16 +178,16 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         va = (knot_y[k + 1] - knot_y[k]) / (tk1 - knot_t[k])
         ys = knot_y[k] + va * (ts - knot_t[k])
         while i_out < n_t and t_out[i_out] <= ts:
-            if not _rhs(ts, x, f0, sig, prm, base, ts, ys, va):
+            if not _rhs(ts, x, f0, sig, prm, base, ts, ys, va, lay):
                 return out, STATUS_NONFINITE
-            out[i_out] = _force(sig, x, prm, base)
+            out[i_out] = _force(sig, x, prm, base, lay)
             i_out += 1
         if i_out >= n_t:
             break
         tb = min(tk1, t_end)
         t = ts
         # Hairer-Wanner initial step
-        if not _rhs(t, x, f0, sig, prm, base, ts, ys, va):
+        if not _rhs(t, x, f0, sig, prm, base, ts, ys, va, lay):
             return out, STATUS_NONFINITE
         d0 = 0.0
         d1 = 0.0
@@ -195,7 +200,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         h0 = min(tb - t, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
         for i in range(ns):
             xp[i] = x[i] + h0 * f0[i]
-        ok = _rhs(t + h0, xp, f1, sig, prm, base, ts, ys, va)
+        ok = _rhs(t + h0, xp, f1, sig, prm, base, ts, ys, va, lay)
         d2 = 0.0
         for i in range(ns):
             d2 += ((f1[i] - f0[i]) / (sc_a[i] + rtol * abs(x[i]))) ** 2
@@ -216,19 +221,19 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                 h = tb - t
                 last = True
             # f, forward-difference Jacobian and time derivative at (t, x)
-            if not _rhs(t, x, f0, sig, prm, base, ts, ys, va):
+            if not _rhs(t, x, f0, sig, prm, base, ts, ys, va, lay):
                 return out, STATUS_NONFINITE
             for j in range(ns):
                 dj = 1.49e-8 * max(abs(x[j]), sc_a[j] * 1e3)
                 for i in range(ns):
                     xp[i] = x[i]
                 xp[j] = x[j] + dj
-                if not _rhs(t, xp, f1, sig, prm, base, ts, ys, va):
+                if not _rhs(t, xp, f1, sig, prm, base, ts, ys, va, lay):
                     return out, STATUS_NONFINITE
                 for i in range(ns):
                     jac[i, j] = (f1[i] - f0[i]) / dj
             dt = 1.49e-8 * max(abs(t), 1.0)
-            if not _rhs(t + dt, x, f1, sig, prm, base, ts, ys, va):
+            if not _rhs(t + dt, x, f1, sig, prm, base, ts, ys, va, lay):
                 return out, STATUS_NONFINITE
             for i in range(ns):
                 ft[i] = (f1[i] - f0[i]) / dt
@@ -259,7 +264,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                                                     ks[2, i] if st > 3 else 0.0, ks[3, i] if st > 4 else 0.0)
                             else:
                                 xp[i] = x_new[i]
-                        if not _rhs(ti, xp, f1, sig, prm, base, ts, ys, va):
+                        if not _rhs(ti, xp, f1, sig, prm, base, ts, ys, va, lay):
                             good = False
                             break
                         for i in range(ns):
@@ -300,13 +305,13 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                 t_new = tb if last else t + h
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
-                    if FORCE_NEEDS_SIGNALS:
+                    if force_needs_signals:
                         for i in range(ns):
                             cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
                             xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
-                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va):
+                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va, lay):
                             return out, STATUS_NONFINITE
-                        out[i_out] = _force(sig, xd, prm, base)
+                        out[i_out] = _force(sig, xd, prm, base, lay)
                     else:  # F = A_P Δp: the dense output of Δp alone
                         cd3, cd4 = dense_coefficients(ks[0, 0], ks[1, 0], ks[2, 0], ks[3, 0], ks[4, 0])
                         out[i_out] = base[B_AREA] * dense_value(x[0], x_new[0], cd3, cd4, s)
