@@ -127,3 +127,21 @@ def test_kernel_source_names_no_effect_and_guards_every_hook():
     assert offsets[0][0] == 1 and all(a + k == b for (a, k), (b, _) in zip(offsets[:-1], offsets[1:], strict=True))
     n_par = [len(EFFECTS[n].params) for n in active]
     assert [lay[names.index(n), L_PRM_END] - lay[names.index(n), L_PRM] for n in active] == n_par
+
+
+def test_step_cap_fails_the_solve_and_is_counted_in_accepted_steps():
+    """``max_steps`` (the diagnosis's search cap) turns a solve needing more accepted steps into a failure."""
+    from bayesdamper.physics.rodas import STATUS_MAX_STEPS
+
+    eff = {"valve_dynamics": {"time_constant_s": 0.05, "opening_pressure_Pa": 1e5}}
+    f, status = _composed(eff, 2.0e5, 1e-3)
+    assert status == STATUS_OK
+    _, capped = _composed(eff, 2.0e5, 1e-3, max_steps=5)
+    assert capped == STATUS_MAX_STEPS
+    lo, hi = 5, 100_000
+    while hi - lo > 1:  # the fewest accepted steps that succeed
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if _composed(eff, 2.0e5, 1e-3, max_steps=mid)[1] == STATUS_OK else (mid, hi)
+    f2, status2 = _composed(eff, 2.0e5, 1e-3, max_steps=hi)
+    assert status2 == STATUS_OK and np.array_equal(f, f2) and _composed(eff, 2.0e5, 1e-3, max_steps=hi - 1)[1] \
+        == STATUS_MAX_STEPS

@@ -346,13 +346,15 @@ def kernel():
 
 def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndarray, knot_y: np.ndarray,
                    t0: float, dp0: float, v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float,
-                   rtol: float, atol: float, *, from_force: bool = False) -> tuple[np.ndarray, int]:
+                   rtol: float, atol: float, *, from_force: bool = False,
+                   max_steps: int = composed_template.MAX_STEPS) -> tuple[np.ndarray, int]:
     """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
 
     ``knot_t``, ``knot_y`` are the measured displacement's knots, already through
     :meth:`ComposedEffects.transform_knots`; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
-    (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`).
+    (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`); ``max_steps``:
+    accepted steps after which the solve fails.
     """
     mod = kernel()
     comp = composed.compliance()
@@ -363,4 +365,4 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
     return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), np.ascontiguousarray(knot_t, dtype=float),
                               np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
-                              bool(from_force), composed.layout)
+                              bool(from_force), composed.layout, int(max_steps))

@@ -37,7 +37,7 @@ from bayesdamper.physics.rodas import (
     step_factor,
 )
 
-#: Maximum number of accepted steps of one call.
+#: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
 # layout of the ``base`` vector
 B_AREA, B_V01, B_V02, B_B0, B_ALPHA, B_PR, B_FL0, B_FL1, B_FL2, B_FL3, B_COMP = range(11)
@@ -98,7 +98,7 @@ def _err_norm(v, x, xn, sc_a, rtol):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay):
+def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay, max_steps):
     """Force of the composed model at the sample times (module docstring).
 
     Parameters
@@ -121,6 +121,8 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
     lay : ndarray (n_effects, 4) of int64
         Which registered effects are active, their first state and their parameters' slice in ``prm``
         (:func:`bayesdamper.physics.compose.layout`).
+    max_steps : int
+        Accepted steps after which the solve fails with ``STATUS_MAX_STEPS``.
 
     Returns
     -------
@@ -214,7 +216,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         err_acc = 1.0
         reject = False
         while t < tb:
-            if n_steps >= MAX_STEPS:
+            if n_steps >= max_steps:
                 return out, STATUS_MAX_STEPS
             last = False
             if t + 1.0001 * h >= tb:

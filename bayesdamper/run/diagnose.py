@@ -43,7 +43,7 @@ from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.orifice import orifice_flow_and_slope
-from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
+from bayesdamper.physics.with_effects import STEPS_PER_SAMPLE, AugmentedProblem, effect_argument
 from bayesdamper.run.outfolder import (
     POSTERIORS_DIR,
     _load_finished,
@@ -195,7 +195,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                                     _gain_scale(signature, transients, base_resid, base_model, ds.damper.piston_area,
                                                 static.coefficients))
     rec = {s.record.name: s for s in segs}
-    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients) for tr in transients]
+    # the search caps a solve's steps (STEPS_PER_SAMPLE); the final model is solved without the cap
+    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients,
+                                           max_steps=STEPS_PER_SAMPLE * tr.time.size) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
     engine = ProfileEngine(aug, warm, workers)
     plateaus = [p for s in segs for p in s.plateaus]
@@ -219,7 +221,8 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if selected:
         flow_final = flow_for(fixed) or static.coefficients
         eff = effect_argument(fixed)
-        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final), eff) for a in aug]
+        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, max_steps=None), eff)
+                          for a in aug]
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
                             unit="transient"):
             final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
