@@ -58,6 +58,18 @@ def test_effective_size_and_pooled_j():
     assert pooled_j(r, f) == pytest.approx(np.sqrt(4 / 20))
 
 
+def test_pooled_j_at_the_least_squares_optima_pools_the_per_transient_j():
+    """pooled_j_ls weighs each transient's eq. (9) J by its force energy: the pooled J of residuals of those norms."""
+    from bayesdamper.run.diagnose import pooled_j_ls
+
+    rng = np.random.default_rng(5)
+    forces = [rng.normal(0, s, n) for s, n in ((1e3, 300), (8e3, 500), (2e2, 100))]
+    resid = [rng.normal(0, s, f.size) for s, f in zip((30.0, 400.0, 1.0), forces, strict=True)]
+    entries = [{"ls": {"J": float(np.linalg.norm(r) / np.linalg.norm(f))}} for r, f in zip(resid, forces, strict=True)]
+    assert pooled_j_ls(entries, forces) == pytest.approx(pooled_j(resid, forces), rel=1e-12)
+    assert pooled_j_ls(entries[:1], forces[:1]) == pytest.approx(entries[0]["ls"]["J"], rel=1e-12)
+
+
 # ----------------------------------------------------------------------------------------------------
 # the closed loop on data with an undeclared effect (slow; run in CI)
 

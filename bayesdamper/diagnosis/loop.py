@@ -160,7 +160,10 @@ def report_text(d: dict) -> str:
                      f"{b['reversal_Pa'] / 1e6:.2f} MPa, after {a['initial_Pa'] / 1e6:.2f} vs "
                      f"{a['reversal_Pa'] / 1e6:.2f} MPa: "
                      + ("closes" if a["agrees"] else "does not close") + ".")
-    lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f}.")
+    lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f} at the "
+                 "posterior medians" + (f"; at the least-squares optima {d['baseline']['J_pooled_ls']:.4f} -> "
+                                        f"{d['final']['J_pooled_ls']:.4f}" if "J_pooled_ls" in d["final"] else "")
+                 + ".")
     return "\n".join(lines)
 
 
