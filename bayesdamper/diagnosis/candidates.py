@@ -44,7 +44,8 @@ def _inner_fit(args):
 
     Trust-region least squares (scipy ``least_squares``, ``trf``, forward differences in log space) from the
     warm start: about 15 solves where Nelder-Mead needed about 65; a failed solve inside the search makes the
-    residual huge, and if the search itself fails Nelder-Mead finishes from the warm start.
+    residual huge, and if the search itself fails Nelder-Mead finishes from the warm start. Effect values whose
+    solve fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once.
     """
     k, eff, flow, warm = args
     prob = _PROBLEMS[k]
@@ -64,6 +65,8 @@ def _inner_fit(args):
         return float(r @ r) if r is not big else 1e300
 
     x0 = np.clip(np.asarray(warm, dtype=float), _BOX[0] + 1e-9, _BOX[1] - 1e-9)
+    if resid(x0) is big:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
+        return x0, 1e300, None
     try:
         ls = least_squares(resid, x0, method="trf", bounds=_BOX, diff_step=1e-4, x_scale=1.0, xtol=1e-4,
                            ftol=1e-7, max_nfev=40)
@@ -97,6 +100,10 @@ class ProfileEngine:
         self._pool = None
         if self.workers > 1:
             import multiprocessing as mp
+
+            from bayesdamper.physics.compose import warm_up
+
+            warm_up()  # compiled once here, inherited by the forked workers
 
             ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
             self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)

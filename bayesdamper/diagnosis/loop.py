@@ -80,6 +80,9 @@ def calibrate_with(transients, problems, damper, flow, settings, seed: int, work
             out.append(_calibrate_task(t))
             progress.advance()
         return out
+    from bayesdamper.physics.compose import warm_up
+
+    warm_up()  # compiled once here, inherited by the forked workers
     ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
         for r in ex.map(_calibrate_task, tasks):

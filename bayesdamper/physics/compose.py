@@ -46,7 +46,7 @@ from bayesdamper.physics import composed_template
 from bayesdamper.physics.effects import EFFECT_MODULES, complete_effects
 from bayesdamper.physics.effects import signals as _signals
 
-__all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "layout", "solve_composed"]
+__all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "layout", "solve_composed", "warm_up"]
 
 _PREFIX = "bayesdamper_kernel_"
 #: The solver half, read once at import so that every kernel of a process is generated from the same text.
@@ -366,3 +366,15 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
                               np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
                               bool(from_force), composed.layout, int(max_steps))
+
+
+def warm_up() -> None:
+    """Compile (or load) the composed kernel in this process with a tiny solve.
+
+    Call it before forking worker processes: they inherit the compiled code instead of each compiling it.
+    """
+    from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
+
+    t = np.array([0.0, 1.0])
+    solve_composed(compose({}), np.array([0.5]), t, np.array([0.0, 1e-3]), 0.0, 0.0, 0.0, RIG_A_DAMPER,
+                   PAPER_FLOW.as_array(), 40.0, 3.0e5, 1e-6, 1.0)
