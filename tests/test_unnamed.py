@@ -51,3 +51,46 @@ def test_reading_names_frequency_damping_driver_and_placement():
     assert text == ("unnamed dynamics: 1.70 Hz, damping 0.25, driven by Δp (dead zone), acting on the force "
                     "(transient)")
     assert effect_reading("friction", {}, "seal friction") == "seal friction"
+
+
+def test_signature_starts_and_library_candidates_map_time_scales_by_unit():
+    from bayesdamper.diagnosis.unnamed import library_candidates, signature_starts
+
+    sig = {"verdict": "dynamics", "fit": {"poles": [{"kind": "oscillatory", "frequency_hz": 2.9, "damping": 0.2},
+                                                    {"kind": "real", "time_constant_s": 0.05}]}}
+    st = signature_starts(sig)
+    assert st["Hz"] == pytest.approx([2.9, 1 / (2 * math.pi * 0.05)])
+    assert st["damping"] == [0.2] and st["s"] == pytest.approx([1 / (2 * math.pi * 2.9), 0.05])
+    specs = {c.label: c for c in library_candidates(["poppet_valve", "valve_dynamics", "friction"], sig)}
+    assert specs["poppet_valve"].starts == {"natural_frequency_Hz": tuple(st["Hz"]), "damping_ratio": (0.2,)}
+    assert specs["valve_dynamics"].starts == {"time_constant_s": tuple(st["s"])}
+    assert specs["friction"].starts == {}
+    assert signature_starts({"verdict": "none", "fit": sig["fit"]}) == {}
+
+
+def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
+    """A profile with a narrow well at 3 Hz between the grid's frequencies (0.2, 6.3, 200 Hz on poppet_valve's
+    log axis): the grid and the local search alone stay on the plateau; started at part 1's 2.9 Hz they find it."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
+
+    class Engine:
+        problems = [SimpleNamespace(force=np.ones(50))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            p = eff["poppet_valve"]
+            well = math.exp(-((math.log(p["natural_frequency_Hz"] / 3.0)) / 0.08) ** 2)
+            sse = 50.0 * (1.0 - 0.9 * well) * (1.0 + 0.01 * math.log(p["span_Pa"] / 3e7) ** 2)
+            return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+    def fit(starts):
+        return fit_joint(Engine(), [CandidateSpec("poppet_valve", starts=starts)], {}, {}, np.array([50.0]),
+                         np.array([50.0]), lambda e: None, lambda e: e)
+
+    plain = fit({})
+    started = fit({"natural_frequency_Hz": (2.9,), "damping_ratio": (0.2,)})
+    assert started.j_pooled < 0.5 and plain.j_pooled > 0.9
+    assert started.effects["poppet_valve"]["natural_frequency_Hz"] == pytest.approx(3.0, rel=0.05)

@@ -28,7 +28,9 @@ from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.residual import _lag1
 
 #: Grid points of the outer search before local refinement: 6 for one new parameter, 4 per axis for two, 3 per
-#: axis for three or more (27 points: the local search refines from the best).
+#: axis for three or more (27 points: the local search refines from the best). A spec's ``starts`` add, for the
+#: parameters they name, their values to a one-parameter grid, and otherwise the grid over the other axes with
+#: those parameters at their starts.
 GRID_POINTS = 6
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
@@ -173,12 +175,16 @@ class CandidateSpec:
         ``{param: value}`` of the effect's optional parameters held fixed (a structure found by part 1).
     reading : str
         Physical reading for the report (default: the effect's description).
+    starts : dict
+        ``{param: (values...)}`` added to the search grid (part 1's frequency, damping or time constant for
+        a library effect's parameters of that kind: :func:`bayesdamper.diagnosis.unnamed.signature_starts`).
     """
 
     label: str
     overrides: dict = dataclasses.field(default_factory=dict)
     extra: dict = dataclasses.field(default_factory=dict)
     reading: str = ""
+    starts: dict = dataclasses.field(default_factory=dict)
 
     @property
     def effect(self) -> str:
@@ -299,11 +305,16 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         else:
             grid_dims.append(j)
             z0[j] = 0.5 * (lo[j] + hi[j])
+    def starts_of(j):
+        spec, p = flat[j]
+        return sorted({float(np.clip(_transform(p, v), lo[j], hi[j])) for v in spec.starts.get(p.name, ())
+                       if math.isfinite(v) and (not p.log or p.sign * v > 0)})
+
     if len(flat) == 1:
-        grid = np.linspace(lo[0], hi[0], GRID_POINTS)
+        grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS), *(starts_of(0) if grid_dims else [])}))
         vals = [objective([g]) for g in grid]
         i = int(np.argmin(vals))
-        a, b = grid[max(i - 1, 0)], grid[min(i + 1, GRID_POINTS - 1)]
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
         res = minimize_scalar(lambda z: objective([z]), bounds=(a, b), method="bounded",
                               options={"xatol": 0.01 * (hi[0] - lo[0])})
         z_hat = np.array([res.x if res.fun < vals[i] else grid[i]])
@@ -318,6 +329,14 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                 z = z0.copy()
                 z[grid_dims] = pt
                 cands.append(z)
+            # the grid over the other axes with the started parameters at their start values
+            started = [j for j in grid_dims if starts_of(j)]
+            if started:
+                axes_s = [starts_of(j) if j in started else np.linspace(lo[j], hi[j], n_g) for j in grid_dims]
+                for pt in np.array(np.meshgrid(*axes_s, indexing="ij")).reshape(len(grid_dims), -1).T:
+                    z = z0.copy()
+                    z[grid_dims] = pt
+                    cands.append(z)
             vals = [objective(z) for z in cands]
             best = cands[int(np.argmin(vals))]
         step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)

@@ -147,9 +147,15 @@ def report_text(d: dict) -> str:
                      f"{MIN_J_REDUCTION:.0%} reduction of the pooled J.")
         if d["candidates"]:
             c = d["candidates"][0]
-            lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J by "
-                         f"only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of the "
-                         "library's effects reproduces it.")
+            if c.get("supported") and "lovo" in c:
+                folds = ", ".join(f"{g:+.0f}" for g in c["lovo"]["per_fold"])
+                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
+                             f"-{c.get('J_reduction', float('nan')):.0%}) is supported in sample but does not "
+                             f"predict every held-out speed better (folds {folds}).")
+            else:
+                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
+                             f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
+                             "the library's effects reproduces it.")
     kinds = s.get("parameters_by_kind_median", {})
     if len(kinds) == 2:
         ini, rev = kinds["initial"], kinds["reversal"]

@@ -24,7 +24,7 @@ import math
 from bayesdamper.diagnosis.candidates import CandidateSpec, SearchParam
 from bayesdamper.physics.effects import unnamed_dynamics as _ud
 
-__all__ = ["effect_reading", "unnamed_candidates"]
+__all__ = ["effect_reading", "library_candidates", "signature_starts", "unnamed_candidates"]
 
 #: The signature's drivers the generic effect can take (time since the step is no model signal).
 _DRIVER_CODE = {"dp": 0, "q": 1, "y": 2}
@@ -46,6 +46,49 @@ def _second_order(poles: list[dict]) -> tuple[float, float] | None:
     t1, t2 = (taus[0], taus[1]) if len(taus) > 1 else (taus[0], taus[0] / 10.0)
     g = math.sqrt(t1 * t2)
     return 1.0 / (2.0 * math.pi * g), (t1 + t2) / (2.0 * g)
+
+
+def signature_starts(signature: dict) -> dict[str, list[float]]:
+    """Part 1's time scales as search starts: ``{"Hz": [...], "damping": [...], "s": [...]}``.
+
+    An oscillatory pole gives its frequency, damping and period / 2π; a real pole its time constant and
+    1 / (2π τ). Empty when part 1 identified nothing.
+    """
+    fit = signature.get("fit") or {}
+    if signature.get("verdict") in (None, "none", "not identified"):
+        return {}
+    out: dict[str, list[float]] = {"Hz": [], "damping": [], "s": []}
+    for p in fit.get("poles") or []:
+        if p.get("kind") != "real" and p.get("frequency_hz"):
+            f = float(p["frequency_hz"])
+            out["Hz"].append(f)
+            out["s"].append(1.0 / (2.0 * math.pi * f))
+            if p.get("damping"):
+                out["damping"].append(float(p["damping"]))
+        elif p.get("time_constant_s"):
+            tau = float(p["time_constant_s"])
+            out["s"].append(tau)
+            out["Hz"].append(1.0 / (2.0 * math.pi * tau))
+    return {k: v for k, v in out.items() if v}
+
+
+def library_candidates(names: list[str], signature: dict) -> list[CandidateSpec]:
+    """The library's effects as candidates, their frequency, damping-ratio and time-constant parameters
+    started also at part 1's values (:func:`signature_starts`): a coarse grid alone misses the narrow
+    optimum of a lightly damped valve."""
+    from bayesdamper.physics.effects import EFFECTS
+
+    found = signature_starts(signature)
+    out = []
+    for name in names:
+        starts = {}
+        for prm in EFFECTS[name].params:
+            kind = "Hz" if prm.unit == "Hz" else "damping" if "damping_ratio" in prm.name else \
+                "s" if prm.unit == "s" else None
+            if kind in found and not prm.optional:
+                starts[prm.name] = tuple(found[kind])
+        out.append(CandidateSpec(name, starts=starts))
+    return out
 
 
 def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_scale: float) -> list[CandidateSpec]:

@@ -36,7 +36,7 @@ from bayesdamper.diagnosis.residual import (
 )
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
 from bayesdamper.diagnosis.sysid import apply_law
-from bayesdamper.diagnosis.unnamed import unnamed_candidates
+from bayesdamper.diagnosis.unnamed import library_candidates, unnamed_candidates
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
@@ -198,8 +198,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
 
     # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient; the generic
     #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
-    if not effects or GENERIC in effects:
-        names = [n for n in names if n != GENERIC]
+    generic = not effects or GENERIC in effects
+    names = library_candidates([n for n in names if n != GENERIC], signature)
+    if generic:
         dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / ds.damper.piston_area
         c = static.coefficients.as_array()
         slope = orifice_flow_and_slope(dp_typ, c[0], c[1], c[2], c[3])[1]
@@ -289,7 +290,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         "settings": settings.as_dict(), "seed": seed, "effects_considered": [getattr(n, "label", n) for n in names],
         "unnamed_candidates": [{"label": n.label, "structure": n.extra, "reading": n.reading,
                                 "search": {k: [v.lower, v.upper] for k, v in n.overrides.items()}}
-                               for n in names if not isinstance(n, str)], "provenance": prov,
+                               for n in names if not isinstance(n, str) and n.effect == GENERIC],
+        "search_starts": {n.label: n.starts for n in names if not isinstance(n, str) and n.starts},
+        "provenance": prov,
     }
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures
