@@ -29,9 +29,10 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow
 
-# The confusion table of the closed loop on independent reference data (one diagnose per case; long).
+# The confusion tables of the closed loop, printed: on independent reference data (also in test-slow) and on
+# bayesdamper's own synthetic data (a consistency check, not in CI). One diagnose per case; long.
 test-confusion: $(STAMP)
-	$(PY) -m pytest -q -s -m confusion tests/test_confusion.py
+	$(PY) -m pytest -q -s -m "slow or confusion" tests/test_confusion.py tests/test_diagnosis.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check bayesdamper tests benchmarks analyses

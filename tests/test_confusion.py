@@ -1,4 +1,4 @@
-"""Confusion table of the closed loop on data from an independent reference simulator (slow; run in CI).
+"""Confusion table of the closed loop on data from an independent reference simulator (slow; CI runs it).
 
 The data come from ``tests/reference_effects.py`` (scipy Radau, written from the equations, no bayesdamper
 import): a two-state damper with an accumulator (the reference's ``accumulator``: absolute chamber
@@ -45,6 +45,8 @@ CASES = {
     "servo, more reversals": ({"command_displacement": {"bandwidth_Hz": 6.0, "damping_ratio": 0.25}}, 2.25),
 }
 
+_PARAMS = list(CASES)
+
 
 def _dataset(folder, effects: dict, cycles: float, seed: int):
     effects = {k: dict(v) for k, v in effects.items()}
@@ -66,8 +68,8 @@ def _families(labels) -> set:
     return {FAMILY[lab.split("@", 1)[0]] for lab in labels}
 
 
-@pytest.mark.confusion
-@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.slow
+@pytest.mark.parametrize("case", _PARAMS)
 def test_confusion_on_reference_data(case, tmp_path):
     from bayesdamper.run.diagnose import run_diagnosis
 

@@ -94,3 +94,17 @@ def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     started = fit({"natural_frequency_Hz": (2.9,), "damping_ratio": (0.2,)})
     assert started.j_pooled < 0.5 and plain.j_pooled > 0.9
     assert started.effects["poppet_valve"]["natural_frequency_Hz"] == pytest.approx(3.0, rel=0.05)
+
+
+def test_flow_path_candidates_for_the_other_model_drivers():
+    """Part 1 chose Δp (dead zone): one more flow-path transient candidate driven by Q_O (linear law) with the
+    same poles; part 1's own driver gets no duplicate, and a bad scale gives none."""
+    specs = unnamed_candidates(SIGNATURE, 4.2e-3, 5e-12, 2e-3, {"dp": 1e-3, "q": 4e8, "y": 1e6})
+    extra = [s for s in specs if s.label.count(":") == 2]
+    assert [s.label for s in extra] == ["unnamed_dynamics@flow:transient:q"]
+    s = extra[0]
+    assert s.extra == {"driver": 1.0, "law": 0.0, "threshold": 0.0, "placement": 1.0, "mode": 1.0}
+    assert s.overrides["gain"].upper == pytest.approx(30 * 4e8 * 5e-12 / 4.2e-3)
+    assert s.overrides["natural_frequency_Hz"].lower == pytest.approx(0.88)
+    EFFECTS["unnamed_dynamics"].complete(s.extra)
+    assert len(unnamed_candidates(SIGNATURE, 4.2e-3, 5e-12, 2e-3, {"q": math.nan})) == 4

@@ -91,7 +91,16 @@ def library_candidates(names: list[str], signature: dict) -> list[CandidateSpec]
     return out
 
 
-def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_scale: float) -> list[CandidateSpec]:
+#: Drivers also tried on the flow path (transient mode, linear law) with part 1's poles when part 1 chose
+#: another: the model signals flow-path dynamics are driven by (a fluid inertance, a valve). Part 1 fits the
+#: residual linearly on the *baseline's* signals; when that baseline is far off (the reference inertance case:
+#: J 0.35, α_V and p_R at their bounds) its driver can be a kinematic one (there |y_P|), while the joint refit
+#: of a candidate re-calibrates (α_V, p_R) with the effect in place.
+FLOW_DRIVERS = ("dp", "q")
+
+
+def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_scale: float,
+                       other_scales: dict | None = None) -> list[CandidateSpec]:
     """Candidates of the generic effect from part 1's signature (empty when there is nothing to add).
 
     Parameters
@@ -104,6 +113,9 @@ def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_sca
         dQ_O/dΔp at the median |Δp| of the transients [m^3/(s Pa)].
     gain_scale : float
         rms of the residual over rms of the law applied to the driver [N per driver unit] (transient mode).
+    other_scales : dict, optional
+        ``{driver: rms of the residual / rms of the driver}`` for :data:`FLOW_DRIVERS` (one more flow-path
+        transient candidate, linear law, for each driver other than part 1's).
     """
     fit = signature.get("fit")
     if not fit or signature.get("verdict") in (None, "none", "not identified"):
@@ -142,6 +154,15 @@ def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_sca
             out.append(CandidateSpec(f"unnamed_dynamics@{placement}:{mode}", {"gain": g, **dynamics},
                                      {**extra, **code},
                                      f"driven by {_DRIVER_TEXT[driver]}{_LAW_TEXT[law]}, {where} ({mode})"))
+    for other, scale in (other_scales or {}).items():
+        top = GAIN_FACTOR * scale * abs(to_flow)
+        if other == driver or other not in FLOW_DRIVERS or not (math.isfinite(top) and top > 0.0):
+            continue
+        out.append(CandidateSpec(f"unnamed_dynamics@flow:transient:{other}",
+                                 {"gain": SearchParam("gain", -top, top, False), **dynamics},
+                                 {"driver": float(_DRIVER_CODE[other]), "law": 0.0, "threshold": 0.0,
+                                  "placement": 1.0, "mode": float(_ud.MODES.index("transient"))},
+                                 f"driven by {_DRIVER_TEXT[other]}, acting on the flow path (transient)"))
     return out
 
 

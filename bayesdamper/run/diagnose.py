@@ -36,7 +36,7 @@ from bayesdamper.diagnosis.residual import (
 )
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
 from bayesdamper.diagnosis.sysid import apply_law
-from bayesdamper.diagnosis.unnamed import library_candidates, unnamed_candidates
+from bayesdamper.diagnosis.unnamed import FLOW_DRIVERS, library_candidates, unnamed_candidates
 from bayesdamper.inference.problem import TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
@@ -78,6 +78,15 @@ def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> fl
     g = apply_law(u, fit["law"], float(fit.get("eps") or 0.0), float(fit.get("threshold") or 0.0))
     r = np.concatenate(base_resid)
     den = float(np.sqrt(np.mean(g * g)))
+    return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
+
+
+def _rms_ratio(transients, base_resid, base_model, area, flow, driver: str) -> float:
+    """rms of the residual over rms of the model signal ``driver`` [N per driver unit]."""
+    u = np.concatenate([model_signals(tr, fm, area, flow)[driver] for tr, fm in zip(transients, base_model,
+                                                                                    strict=True)])
+    den = float(np.sqrt(np.mean(u * u)))
+    r = np.concatenate(base_resid)
     return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
 
 
@@ -206,7 +215,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
         slope = orifice_flow_and_slope(dp_typ, c[0], c[1], c[2], c[3])[1]
         names += unnamed_candidates(signature, ds.damper.piston_area, float(slope),
                                     _gain_scale(signature, transients, base_resid, base_model, ds.damper.piston_area,
-                                                static.coefficients))
+                                                static.coefficients),
+                                    {k: _rms_ratio(transients, base_resid, base_model, ds.damper.piston_area,
+                                                   static.coefficients, k) for k in FLOW_DRIVERS})
     rec = {s.record.name: s for s in segs}
     # the search caps a solve's steps (STEPS_PER_SAMPLE); the final model is solved without the cap
     aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients,
