@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 
 from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, paired, velocity_folds
 from bayesdamper.diagnosis.loop import lovo_passes
@@ -36,3 +37,45 @@ def test_paired_difference_and_its_se():
     c = LovoScore(3.0, 1.0, (2.0, 0.0, 1.0))
     q = paired(a, c)
     assert math.isclose(q["se"], math.sqrt(3 * np.var([-1.0, 2.0, 2.0], ddof=1)))
+
+
+def test_screening_subset_takes_every_speed_and_rotates_the_kind():
+    from bayesdamper.diagnosis.candidates import screening_subset
+
+    speeds = [v * 1e-3 + d for v in np.arange(0.5, 1.55, 0.1) for d in (0.0, 2e-7, -3e-7)]  # 11 tests x 3 steps
+    sub = screening_subset(speeds)
+    assert sub.tolist() == [3 * g + g % 3 for g in range(11)]  # one per speed: s0, s1, s2, s0, ...
+    assert screening_subset(speeds[:12]) is None  # 12 or fewer: all
+    two = screening_subset([1e-3] * 10 + [2e-3] * 10)
+    assert two.tolist() == list(range(6)) + list(range(11, 17))  # 6 per speed, rotated by one at the second
+
+
+def test_a_screened_grid_finds_the_same_optimum_and_scores_on_every_transient():
+    """The grid on a subset picks the start; the local search and the score use all transients."""
+    from types import SimpleNamespace
+
+    from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
+
+    class Engine:
+        def __init__(self, screen):
+            self.problems = [SimpleNamespace(force=np.ones(20)) for _ in range(16)]
+            self.screen = screen
+            self.calls = []
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            k = np.arange(16) if idx is None else np.asarray(idx)
+            self.calls.append(len(k))
+            tau = eff["valve_dynamics"]["time_constant_s"]
+            sse = 20.0 * (1.0 + (np.log(tau / 0.03)) ** 2 * (1 + 0.1 * k))
+            return sse, np.zeros((k.size, 2)), [np.full(20, math.sqrt(v / 20)) for v in sse]
+
+    out = {}
+    for screen in (None, np.array([0, 5, 10])):
+        eng = Engine(screen)
+        fit = fit_joint(eng, [CandidateSpec("valve_dynamics")], {}, {"valve_dynamics": {}}, np.full(16, 40.0),
+                        np.full(16, 20.0), lambda e: None, lambda e: e)
+        out[screen is None] = (fit, eng.calls)
+    full, screened = out[True][0], out[False][0]
+    assert screened.effects["valve_dynamics"]["time_constant_s"] == pytest.approx(0.03, rel=0.02)
+    assert screened.delta_bic == pytest.approx(full.delta_bic, abs=0.5)
+    assert 3 in out[False][1] and 3 not in out[True][1]  # the grid ran on the subset

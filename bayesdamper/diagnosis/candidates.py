@@ -32,6 +32,9 @@ from bayesdamper.diagnosis.residual import _lag1
 #: parameters they name, their values to a one-parameter grid, and otherwise the grid over the other axes with
 #: those parameters at their starts.
 GRID_POINTS = 6
+#: Transients above which a search's grid stage runs on a screening subset (:func:`screening_subset`): the grid
+#: only picks the local search's start, and the local search, the score and the interval use every transient.
+SCREEN_ABOVE = 12
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
 _PROBLEMS: list = []
@@ -88,13 +91,33 @@ def _inner_fit(args):
     return x_hat, float(r @ r), r
 
 
+def screening_subset(velocities: list[float], above: int = SCREEN_ABOVE) -> np.ndarray | None:
+    """Transients of the grid stage when there are more than ``above``: ``above // n_speeds`` (at least one) of
+    every test speed, the kind of step rotating from speed to speed (starts from rest and reversals both in).
+    None when every transient would be kept."""
+    if len(velocities) <= above:
+        return None
+    key = [round(abs(v) / 1e-6) for v in velocities]
+    speeds = sorted(set(key))
+    per = max(1, above // len(speeds))
+    out = []
+    for g, sp in enumerate(speeds):
+        members = [k for k, kk in enumerate(key) if kk == sp]
+        out += [members[(g + j) % len(members)] for j in range(min(per, len(members)))]
+    return np.array(sorted(set(out))) if len(set(out)) < len(velocities) else None
+
+
 @dataclass
 class ProfileEngine:
-    """Evaluates S_k(ψ) for all transients (in parallel), warm-starting each from its last optimum."""
+    """Evaluates S_k(ψ) for all transients (in parallel), warm-starting each from its last optimum.
+
+    ``screen``: transients of the searches' grid stage (:func:`screening_subset`; None: all).
+    """
 
     problems: list
     warm: np.ndarray  # (n, 2) log α_V, log p_R
     workers: int = 1
+    screen: np.ndarray | None = None
 
     def __post_init__(self):
         global _PROBLEMS
@@ -272,6 +295,8 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     n_total = float(n_eff[sel].sum())
     cur = float(np.sum(current_sse[sel]))
     cache: dict = {}
+    screen = getattr(engine, "screen", None) if idx is None else None
+    grid_cache: dict = {}
 
     def effects_at(z):
         e = {k: dict(v) for k, v in fixed.items()}
@@ -296,6 +321,23 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             cache[key] = float(n_total * math.log(max(float(np.sum(sse)), 1e-300) / cur))
         return cache[key]
 
+    def grid_objective(z):
+        """The objective on the screening subset (the grid only picks the local search's start)."""
+        if screen is None:
+            return objective(z)
+        z = np.clip(np.asarray(z, dtype=float), lo, hi)
+        key = tuple(np.round(z, 6))
+        if key not in grid_cache:
+            e = effects_at(z)
+            try:
+                flow = flow_for(e)
+            except BayesDamperError:
+                grid_cache[key] = INFEASIBLE
+                return grid_cache[key]
+            sse, _, _ = engine.evaluate(pack(e), flow, idx=screen)
+            grid_cache[key] = float(np.log(max(float(np.sum(sse)), 1e-300)))
+        return grid_cache[key]
+
     # starting point: given values, and a grid over the candidates without one
     z0 = np.zeros(len(flat))
     grid_dims = []
@@ -312,12 +354,12 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
 
     if len(flat) == 1:
         grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS), *(starts_of(0) if grid_dims else [])}))
-        vals = [objective([g]) for g in grid]
+        vals = [grid_objective([g]) for g in grid]
         i = int(np.argmin(vals))
         a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
         res = minimize_scalar(lambda z: objective([z]), bounds=(a, b), method="bounded",
                               options={"xatol": 0.01 * (hi[0] - lo[0])})
-        z_hat = np.array([res.x if res.fun < vals[i] else grid[i]])
+        z_hat = np.array([res.x if res.fun < objective([grid[i]]) else grid[i]])
     else:
         best = z0
         if grid_dims:
@@ -337,7 +379,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                     z = z0.copy()
                     z[grid_dims] = pt
                     cands.append(z)
-            vals = [objective(z) for z in cands]
+            vals = [grid_objective(z) for z in cands]
             best = cands[int(np.argmin(vals))]
         step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)
         simplex = np.vstack([best] + [best + np.eye(len(flat))[j] * step[j] for j in range(len(flat))])
@@ -347,7 +389,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         z_hat = np.clip(res.x, lo, hi) if res.fun < objective(best) else best
     d_hat = objective(z_hat)
     e_hat = effects_at(z_hat)
-    n_evals = len(cache)
+    n_evals = len(cache) + len(grid_cache)
     if idx is not None:
         return CandidateFit("+".join(s.label for s in specs), {}, {}, float(d_hat + n_new * math.log(n_total)),
                             float("nan"), np.array([]), np.array([]), n_evals, e_hat, n_new,

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j
+from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j, screening_subset
 from bayesdamper.diagnosis.loop import (
     SELECT_DELTA_BIC,
     FixedEffectsProblem,
@@ -223,7 +223,7 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients,
                                            max_steps=STEPS_PER_SAMPLE * tr.time.size) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
-    engine = ProfileEngine(aug, warm, workers)
+    engine = ProfileEngine(aug, warm, workers, screen=screening_subset(_test_speeds(transients)))
     plateaus = [p for s in segs for p in s.plateaus]
 
     def flow_for(e):
