@@ -8,9 +8,9 @@ without being an effect worth adding. Out-of-sample evidence is required too: th
 leave-velocities-out predictive gain over the current model must be positive in every held-out fold and,
 with at least ``LOVO_MIN_FOLDS_FOR_SE`` folds, exceed ``LOVO_SE`` = 2 standard errors
 (:mod:`bayesdamper.diagnosis.attribution`); among the options that pass, the largest gain wins. Options
-are single candidates and pairs of the best ones; every round re-fits the effects already selected jointly
-with the new ones. Otherwise the answer is "none". The search repeats until nothing passes (at most
-``MAX_ROUNDS``).
+are single candidates and pairs of the best ones; every option re-fits the effects already selected jointly
+with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
+jointly). Otherwise the answer is "none". The search repeats until nothing passes (at most ``MAX_ROUNDS``).
 """
 
 from __future__ import annotations
@@ -205,8 +205,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                    velocities: list[float] | None = None) -> tuple[list, dict, list]:
     """The select-and-refit loop (module docstring of :mod:`bayesdamper.diagnosis.attribution` for the evidence).
 
-    Each round: every remaining candidate is fitted together with the effects already selected (those
-    re-fitted jointly); pairs of the :data:`PAIR_FROM` best new candidates are fitted jointly too. An option
+    Each round: every remaining candidate is fitted (after the first round with the effects already selected
+    held at their values, as a screen); the :data:`PAIR_FROM` best are re-fitted jointly with the selected
+    effects (those re-fitted too), and pairs of them are fitted jointly. Only joint fits are options. An option
     (single or pair) is *supported* by the present criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it
     lowers the pooled J by >= :data:`MIN_J_REDUCTION`. For the :data:`LOVO_OPTIONS` best supported options
     by ΔBIC_eff, and the best other option as the runner-up, the leave-velocities-out gain over the current
@@ -239,9 +240,20 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         fits = []
         for label in remaining:
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
-            fits.append(fit_joint(engine, sel_specs + [specs[label]], start, {}, current["sse"], n_eff, flow_for,
+            # after the first round: screened with the selected effects held at their values ...
+            fits.append(fit_joint(engine, [specs[label]], {}, fixed, current["sse"], n_eff, flow_for,
                                   effect_argument))
             progress.advance()
+        held = set()
+        if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
+            held = {c.effect for c in fits}
+            for c in sorted((c for c in fits if c.delta_bic < 0), key=lambda c: c.delta_bic)[:PAIR_FROM]:
+                progress(f"diagnose: round {rnd + 1}, re-fitting {c.effect} jointly with {', '.join(selected)}")
+                st = dict(start)
+                st[c.effect] = c.effects[specs[c.effect].effect]
+                fits[fits.index(c)] = fit_joint(engine, sel_specs + [specs[c.effect]], st, {}, current["sse"], n_eff,
+                                                flow_for, effect_argument, new=(c.effect,))
+                held.discard(c.effect)
         singles = sorted(fits, key=lambda c: c.delta_bic)
         seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
         for i, a in enumerate(seeds):
@@ -256,6 +268,10 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                       n_eff, flow_for, effect_argument, new=(a.effect, b.effect)))
         fits.sort(key=lambda c: c.delta_bic)
         rows = [_option_row(c, j_cur) for c in fits]
+        for row in rows:
+            if row["effect"] in held:  # screened only: not an option (its fit held the selected effects)
+                row["supported"] = False
+                row["held_selected"] = True
         lovo_cache: dict = {}
         for row in rows:
             row["passes"] = False
