@@ -79,3 +79,24 @@ def test_a_screened_grid_finds_the_same_optimum_and_scores_on_every_transient():
     assert screened.effects["valve_dynamics"]["time_constant_s"] == pytest.approx(0.03, rel=0.02)
     assert screened.delta_bic == pytest.approx(full.delta_bic, abs=0.5)
     assert 3 in out[False][1] and 3 not in out[True][1]  # the grid ran on the subset
+
+
+def test_a_pair_must_earn_its_second_effect():
+    """The reference control: accumulator + a generic effect of gain ~1e-16 had the largest fold gain by 1.5
+    (noise) and was selected; now a pair must meet the criterion over its better member too."""
+    from bayesdamper.diagnosis.loop import check_pairs
+
+    def row(effect, score, j):
+        return {"effect": effect, "score": score, "J_pooled": j, "supported": True, "pair": "+" in effect}
+
+    rows = [row("accumulator", -3303.6, 0.00311), row("unnamed@flow", -864.9, 0.0044),
+            row("accumulator+unnamed@flow", -3281.8, 0.00311), row("friction", -900.0, 0.004),
+            row("accumulator+friction", -3400.0, 0.0024)]
+    check_pairs(rows)
+    assert [r["supported"] for r in rows] == [True, True, False, True, True]
+    assert rows[2]["over_better_member"]["member"] == "accumulator"
+    assert rows[4]["over_better_member"]["delta_BIC_eff"] == pytest.approx(-96.4)
+    rows[4]["J_pooled"] = 0.0028  # ΔBIC enough but J only 10 % lower than the accumulator's
+    rows[4]["supported"] = True
+    check_pairs(rows)
+    assert not rows[4]["supported"]

@@ -10,7 +10,8 @@ with at least ``LOVO_MIN_FOLDS_FOR_SE`` folds, exceed ``LOVO_SE`` = 2 standard e
 (:mod:`bayesdamper.diagnosis.attribution`); among the options that pass, the largest gain wins. Options
 are single candidates and pairs of the best ones; every option re-fits the effects already selected jointly
 with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
-jointly). Otherwise the answer is "none". The search repeats until nothing passes (at most ``MAX_ROUNDS``).
+jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
+Otherwise the answer is "none". The search repeats until nothing passes (at most ``MAX_ROUNDS``).
 """
 
 from __future__ import annotations
@@ -201,6 +202,22 @@ def _option_row(fit, j_cur: float) -> dict:
             "n_profile_evaluations": fit.n_evaluations, "pair": "+" in fit.effect}
 
 
+def check_pairs(rows: list[dict]) -> None:
+    """A pair is supported only if it also meets the criterion over its better member alone (ΔBIC_eff of the
+    pair minus the member's <= :data:`SELECT_DELTA_BIC` and a further :data:`MIN_J_REDUCTION` of the J): the
+    second effect must earn its place as it would in the next round. Sets ``over_better_member``."""
+    singles = {r["effect"]: r for r in rows if not r["pair"]}
+    for row in rows:
+        members = [singles[m] for m in row["effect"].split("+") if m in singles] if row["pair"] else []
+        if len(members) == 2:
+            m = min(members, key=lambda r: r["score"])
+            inc = {"member": m["effect"], "delta_BIC_eff": row["score"] - m["score"],
+                   "J_reduction": 1.0 - row["J_pooled"] / m["J_pooled"]}
+            row["over_better_member"] = inc
+            row["supported"] = bool(row["supported"] and inc["delta_BIC_eff"] <= SELECT_DELTA_BIC
+                                    and inc["J_reduction"] >= MIN_J_REDUCTION)
+
+
 def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, progress,
                    velocities: list[float] | None = None) -> tuple[list, dict, list]:
     """The select-and-refit loop (module docstring of :mod:`bayesdamper.diagnosis.attribution` for the evidence).
@@ -268,6 +285,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                       n_eff, flow_for, effect_argument, new=(a.effect, b.effect)))
         fits.sort(key=lambda c: c.delta_bic)
         rows = [_option_row(c, j_cur) for c in fits]
+        check_pairs(rows)
         for row in rows:
             if row["effect"] in held:  # screened only: not an option (its fit held the selected effects)
                 row["supported"] = False
@@ -301,7 +319,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": rows,
                        "selected": best["effect"] if best else None,
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
-                               f"{MIN_J_REDUCTION:.0%}), every held-out speed fold better and (with >= "
+                               f"{MIN_J_REDUCTION:.0%}; a pair also over its better member), every held-out speed "
+                               "fold better and (with >= "
                                f"{LOVO_MIN_FOLDS_FOR_SE} folds) leave-velocities-out gain > {LOVO_SE:g} se; the "
                                "largest gain wins"})
         if best is None:
