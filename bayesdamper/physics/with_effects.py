@@ -171,10 +171,12 @@ def effect_argument(effects: Mapping[str, Mapping[str, float] | None] | None) ->
 #: Kernel tolerances inside the likelihood: those of :class:`bayesdamper.inference.problem.TransientProblem`.
 PROBLEM_RTOL = 1e-6
 PROBLEM_ATOL = 1.0  # [Pa]
-#: Step cap of the diagnosis's candidate search, per output sample: a solve needing more resolves motion far
-#: faster than the sampling can show (a chattering valve at an extreme trial value, say); it counts as a
-#: failed solve there instead of taking up to 100 000 steps. rig-A's final model takes 0.23 steps per sample.
-STEPS_PER_SAMPLE = 10
+#: Step cap of the diagnosis's candidate search, per output sample: a solve needing more resolves motion
+#: faster than the sampling can show (RODAS4 takes some 20-30 steps per period of an undamped oscillation at
+#: rtol 1e-6, so 3 per sample is about a tenth of the sample rate; a chattering valve at an extreme trial
+#: value, say); it counts as a failed solve there instead of taking up to 100 000 steps (stiff, decaying
+#: modes cost few steps: the solver is L-stable). rig-A's final model takes 0.23 steps per sample.
+STEPS_PER_SAMPLE = 3
 
 
 @dataclass(frozen=True, eq=False)
