@@ -40,7 +40,7 @@ def test_paired_difference_and_its_se():
 
 
 def test_screening_subset_takes_every_speed_and_rotates_the_kind():
-    from bayesdamper.diagnosis.candidates import screening_subset
+    from bayesdamper.diagnosis.attribution import screening_subset
 
     speeds = [v * 1e-3 + d for v in np.arange(0.5, 1.55, 0.1) for d in (0.0, 2e-7, -3e-7)]  # 11 tests x 3 steps
     sub = screening_subset(speeds)

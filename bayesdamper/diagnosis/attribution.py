@@ -25,7 +25,7 @@ import numpy as np
 
 from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
-__all__ = ["MAX_FOLDS", "LovoScore", "velocity_folds", "lovo_score", "paired"]
+__all__ = ["MAX_FOLDS", "SCREEN_ABOVE", "LovoScore", "screening_subset", "velocity_folds", "lovo_score", "paired"]
 
 #: Largest number of folds (each a set of whole test speeds).
 MAX_FOLDS = 6
@@ -47,9 +47,35 @@ class LovoScore:
         return {"gain": self.gain, "se": self.se, "per_fold": list(self.per_fold)}
 
 
+#: Transients above which a search's grid stage runs on a screening subset (:func:`screening_subset`): the grid
+#: only picks the local search's start, and the local search, the score and the interval use every transient.
+SCREEN_ABOVE = 12
+
+
+def _speed_keys(velocities: list[float]) -> list[int]:
+    """Each transient's test speed as an integer (speeds within SPEED_RESOLUTION_M_S are one)."""
+    return [round(abs(v) / SPEED_RESOLUTION_M_S) for v in velocities]
+
+
+def screening_subset(velocities: list[float], above: int = SCREEN_ABOVE) -> np.ndarray | None:
+    """Transients of the grid stage when there are more than ``above``: ``above // n_speeds`` (at least one) of
+    every test speed, the kind of step rotating from speed to speed (starts from rest and reversals both in).
+    None when every transient would be kept."""
+    if len(velocities) <= above:
+        return None
+    key = _speed_keys(velocities)
+    speeds = sorted(set(key))
+    per = max(1, above // len(speeds))
+    out = []
+    for g, sp in enumerate(speeds):
+        members = [k for k, kk in enumerate(key) if kk == sp]
+        out += [members[(g + j) % len(members)] for j in range(min(per, len(members)))]
+    return np.array(sorted(set(out))) if len(set(out)) < len(velocities) else None
+
+
 def velocity_folds(velocities: list[float]) -> list[np.ndarray]:
     """Folds of transient indices: whole speeds, dealt round-robin over the sorted speeds."""
-    key = [round(abs(v) / SPEED_RESOLUTION_M_S) for v in velocities]
+    key = _speed_keys(velocities)
     speeds = sorted(set(key))
     n = min(len(speeds), MAX_FOLDS)
     fold_of = {s: i % n for i, s in enumerate(speeds)}

@@ -32,9 +32,6 @@ from bayesdamper.diagnosis.residual import _lag1
 #: parameters they name, their values to a one-parameter grid, and otherwise the grid over the other axes with
 #: those parameters at their starts.
 GRID_POINTS = 6
-#: Transients above which a search's grid stage runs on a screening subset (:func:`screening_subset`): the grid
-#: only picks the local search's start, and the local search, the score and the interval use every transient.
-SCREEN_ABOVE = 12
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
 _PROBLEMS: list = []
@@ -91,27 +88,12 @@ def _inner_fit(args):
     return x_hat, float(r @ r), r
 
 
-def screening_subset(velocities: list[float], above: int = SCREEN_ABOVE) -> np.ndarray | None:
-    """Transients of the grid stage when there are more than ``above``: ``above // n_speeds`` (at least one) of
-    every test speed, the kind of step rotating from speed to speed (starts from rest and reversals both in).
-    None when every transient would be kept."""
-    if len(velocities) <= above:
-        return None
-    key = [round(abs(v) / 1e-6) for v in velocities]
-    speeds = sorted(set(key))
-    per = max(1, above // len(speeds))
-    out = []
-    for g, sp in enumerate(speeds):
-        members = [k for k, kk in enumerate(key) if kk == sp]
-        out += [members[(g + j) % len(members)] for j in range(min(per, len(members)))]
-    return np.array(sorted(set(out))) if len(set(out)) < len(velocities) else None
-
-
 @dataclass
 class ProfileEngine:
     """Evaluates S_k(ψ) for all transients (in parallel), warm-starting each from its last optimum.
 
-    ``screen``: transients of the searches' grid stage (:func:`screening_subset`; None: all).
+    ``screen``: transients of the searches' grid stage
+    (:func:`bayesdamper.diagnosis.attribution.screening_subset`; None: all).
     """
 
     problems: list
@@ -307,36 +289,26 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             i += len(ps)
         return e
 
-    def objective(z):
-        z = np.clip(np.asarray(z, dtype=float), lo, hi)
-        key = tuple(np.round(z, 6))
-        if key not in cache:
-            e = effects_at(z)
-            try:
-                flow = flow_for(e)
-            except BayesDamperError:  # e.g. friction larger than the plateau forces allow
-                cache[key] = INFEASIBLE
-                return cache[key]
-            sse, _, _ = engine.evaluate(pack(e), flow, idx=sel)
-            cache[key] = float(n_total * math.log(max(float(np.sum(sse)), 1e-300) / cur))
-        return cache[key]
+    def make_objective(rows, memo, score):
+        """``score(pooled SSE)`` of the transients ``rows`` at z (memoised; infeasible flow: INFEASIBLE)."""
+        def f(z):
+            z = np.clip(np.asarray(z, dtype=float), lo, hi)
+            key = tuple(np.round(z, 6))
+            if key not in memo:
+                e = effects_at(z)
+                try:
+                    flow = flow_for(e)
+                except BayesDamperError:  # e.g. friction larger than the plateau forces allow
+                    memo[key] = INFEASIBLE
+                    return memo[key]
+                sse, _, _ = engine.evaluate(pack(e), flow, idx=rows)
+                memo[key] = score(max(float(np.sum(sse)), 1e-300))
+            return memo[key]
+        return f
 
-    def grid_objective(z):
-        """The objective on the screening subset (the grid only picks the local search's start)."""
-        if screen is None:
-            return objective(z)
-        z = np.clip(np.asarray(z, dtype=float), lo, hi)
-        key = tuple(np.round(z, 6))
-        if key not in grid_cache:
-            e = effects_at(z)
-            try:
-                flow = flow_for(e)
-            except BayesDamperError:
-                grid_cache[key] = INFEASIBLE
-                return grid_cache[key]
-            sse, _, _ = engine.evaluate(pack(e), flow, idx=screen)
-            grid_cache[key] = float(np.log(max(float(np.sum(sse)), 1e-300)))
-        return grid_cache[key]
+    objective = make_objective(sel, cache, lambda s: float(n_total * math.log(s / cur)))
+    # the grid only picks the local search's start: on the screening subset when there is one
+    grid_objective = objective if screen is None else make_objective(screen, grid_cache, math.log)
 
     # starting point: given values, and a grid over the candidates without one
     z0 = np.zeros(len(flat))

@@ -160,6 +160,14 @@ def kernel_source() -> str:
     def has(mod, hook):
         return hasattr(mod, hook)
 
+    def guarded(hook, body, skip=()):
+        """For every effect with ``hook`` (but the ``skip`` hooks): ``if lay[i, 0]:`` and ``body(i, alias, n)``."""
+        out = []
+        for i, (alias, mod, n) in enumerate(rows):
+            if has(mod, hook) and not any(has(mod, h) for h in skip):
+                out += [f"    if lay[{i}, 0]:"] + ["        " + b for b in body(i, alias, n)]
+        return out
+
     lines = ["", "", "# " + "-" * 77 + " generated model half",
              "from bayesdamper.physics.compressibility import bulk_modulus_scalar as _bulk",
              "from bayesdamper.physics.orifice import orifice_flow as _orifice",
@@ -186,11 +194,8 @@ def kernel_source() -> str:
               "    sig[VP] = va",
               "    for i in range(ds.shape[0]):",
               "        ds[i] = 0.0"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "displacement"):
-            lines += [f"    if lay[{i}, 0]:",
-                      f"        y, v = {alias}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})",
-                      "        sig[YP] = y", "        sig[VP] = v"]
+    lines += guarded("displacement", lambda i, a, n: [
+        f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})", "sig[YP] = y", "sig[VP] = v"])
     lines += ["    dp = s[0]",
               "    sig[DP] = dp",
               "    area = base[B_AREA]",
@@ -206,9 +211,7 @@ def kernel_source() -> str:
               "    qo = _orifice(dp, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
               "    sig[QO] = qo",
               "    sig[Q] = qo"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "flow"):
-            lines += [f"    if lay[{i}, 0]:", f"        sig[Q] = {alias}.flow(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"]
+    lines += guarded("flow", lambda i, a, n: [f"sig[Q] = {a}.flow(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"])
     lines += ["    q = sig[Q]",
               "    b0 = base[B_B0]",
               "    alpha = base[B_ALPHA]",
@@ -216,10 +219,8 @@ def kernel_source() -> str:
               "    absolute = False",
               "    p1 = 0.0",
               "    p2 = 0.0"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "pressures"):
-            lines += [f"    if lay[{i}, 0]:", f"        p1, p2 = {alias}.pressures(sig, {z(i, n)}, {p(i)})",
-                      "        absolute = True"]
+    lines += guarded("pressures", lambda i, a, n: [f"p1, p2 = {a}.pressures(sig, {z(i, n)}, {p(i)})",
+                                                   "absolute = True"])
     lines += ["    if absolute:",
               "        sig[P1] = p1",
               "        sig[P2] = p2",
@@ -231,10 +232,8 @@ def kernel_source() -> str:
               "        b1 = loaded if dp >= 0.0 else unloaded",
               "        b2 = unloaded if dp >= 0.0 else loaded",
               "    q1 = 0.0", "    q2 = 0.0"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "chamber_flows"):
-            lines += [f"    if lay[{i}, 0]:", f"        a1, a2 = {alias}.chamber_flows(sig, {z(i, n)}, {p(i)})",
-                      "        q1 += a1", "        q2 += a2"]
+    lines += guarded("chamber_flows", lambda i, a, n: [f"a1, a2 = {a}.chamber_flows(sig, {z(i, n)}, {p(i)})",
+                                                       "q1 += a1", "q2 += a2"])
     lines += ["    g1 = b1 / vol1",
               "    g2 = b2 / vol2",
               "    vd = sig[VP]",
@@ -246,16 +245,12 @@ def kernel_source() -> str:
               "    sig[DP1] = g1 * (area * vp - q + q1)",
               "    sig[DP2] = g2 * (-area * vp + q + q2)",
               "    ds[0] = ddp"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "derivatives"):
-            lines += [f"    if lay[{i}, 0]:", f"        {alias}.derivatives(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"]
+    lines += guarded("derivatives", lambda i, a, n: [f"{a}.derivatives(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"])
     lines += ["    return math.isfinite(ddp)", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
               "def _force(sig, s, prm, base, lay):",
               "    f = base[B_AREA] * s[0]"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "force"):
-            lines += [f"    if lay[{i}, 0]:", f"        f += {alias}.force(sig, {z(i, n)}, {p(i)})"]
+    lines += guarded("force", lambda i, a, n: [f"f += {a}.force(sig, {z(i, n)}, {p(i)})"])
     lines += ["    return f", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
               "def _init(t0, ya0, v_prev, dp0, sig, s, prm, base, lay):",
@@ -269,20 +264,15 @@ def kernel_source() -> str:
               "    sig[YP] = ya0",
               "    sig[VP] = v_prev",
               "    sig[DP] = dp0"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "displacement"):
-            lines.append(f"    if lay[{i}, 0]:")
-            if has(mod, "initial"):
-                lines.append(f"        {alias}.initial(sig, {p(i)}, {z(i, n)})")
-            lines += [f"        y, v = {alias}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})",
-                      "        sig[YP] = y", "        sig[VP] = v"]
+    lines += guarded("displacement", lambda i, a, n: ([f"{a}.initial(sig, {p(i)}, {z(i, n)})"]
+                                                      if has(rows[i][1], "initial") else [])
+                     + [f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})",
+                        "sig[YP] = y", "sig[VP] = v"])
     lines += ["    sig[YP] = sig[YP] - base[B_COMP] * base[B_AREA] * dp0",
               "    qo = _orifice(dp0, base[B_FL0], base[B_FL1], base[B_FL2], base[B_FL3])",
               "    sig[QO] = qo",
               "    sig[Q] = qo"]
-    for i, (alias, mod, n) in enumerate(rows):
-        if has(mod, "initial") and not has(mod, "displacement"):
-            lines += [f"    if lay[{i}, 0]:", f"        {alias}.initial(sig, {p(i)}, {z(i, n)})"]
+    lines += guarded("initial", lambda i, a, n: [f"{a}.initial(sig, {p(i)}, {z(i, n)})"], skip=("displacement",))
     lines += ["    for i in range(s.shape[0]):",
               "        if not math.isfinite(s[i]):",
               "            return False",
@@ -347,14 +337,14 @@ def kernel():
 def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndarray, knot_y: np.ndarray,
                    t0: float, dp0: float, v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float,
                    rtol: float, atol: float, *, from_force: bool = False,
-                   max_steps: int = composed_template.MAX_STEPS) -> tuple[np.ndarray, int]:
+                   max_steps: int | None = None) -> tuple[np.ndarray, int]:
     """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
 
     ``knot_t``, ``knot_y`` are the measured displacement's knots, already through
     :meth:`ComposedEffects.transform_knots`; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
     (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`); ``max_steps``:
-    accepted steps after which the solve fails.
+    accepted steps after which the solve fails (None: ``composed_template.MAX_STEPS``).
     """
     mod = kernel()
     comp = composed.compliance()
@@ -365,7 +355,8 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
     return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), np.ascontiguousarray(knot_t, dtype=float),
                               np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
-                              bool(from_force), composed.layout, int(max_steps))
+                              bool(from_force), composed.layout,
+                              int(composed_template.MAX_STEPS if max_steps is None else max_steps))
 
 
 def warm_up() -> None:

@@ -310,7 +310,7 @@ class AugmentedProblem:
             self._cache["composed_knots"] = (key, (kt, ky, v_prev))
         force, status = solve_composed(comp, self.time, kt, ky, self.t_step, self.step_force, v_prev, self.damper,
                                        self._flow4, alpha_v, p_r, self.rtol, self.atol, from_force=True,
-                                       **({} if self.max_steps is None else {"max_steps": self.max_steps}))
+                                       max_steps=self.max_steps)
         return force, status == STATUS_OK
 
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j, screening_subset
+from bayesdamper.diagnosis.attribution import screening_subset
+from bayesdamper.diagnosis.candidates import ProfileEngine, pooled_j
 from bayesdamper.diagnosis.loop import (
     SELECT_DELTA_BIC,
     FixedEffectsProblem,
@@ -68,26 +69,24 @@ def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int,
     return [_load_finished(post_dir / f"{tr.id}.nc", tr, fp) for tr in transients]
 
 
-def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> float:
-    """rms of the residual over rms of part 1's law of its driver (the transient-mode gain scale)."""
-    fit = signature.get("fit") or {}
-    if fit.get("driver") not in ("dp", "q", "y"):
-        return float("nan")
-    u = np.concatenate([model_signals(tr, fm, area, flow)[fit["driver"]] for tr, fm in zip(transients, base_model,
-                                                                                            strict=True)])
-    g = apply_law(u, fit["law"], float(fit.get("eps") or 0.0), float(fit.get("threshold") or 0.0))
+def _rms_ratio(transients, base_resid, base_model, area, flow, driver: str, law: str = "linear", eps: float = 0.0,
+               threshold: float = 0.0) -> float:
+    """rms of the residual over rms of the model signal ``driver`` through ``law`` [N per driver unit]."""
+    u = np.concatenate([model_signals(tr, fm, area, flow)[driver] for tr, fm in zip(transients, base_model,
+                                                                                    strict=True)])
+    g = apply_law(u, law, eps, threshold)
     r = np.concatenate(base_resid)
     den = float(np.sqrt(np.mean(g * g)))
     return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
 
 
-def _rms_ratio(transients, base_resid, base_model, area, flow, driver: str) -> float:
-    """rms of the residual over rms of the model signal ``driver`` [N per driver unit]."""
-    u = np.concatenate([model_signals(tr, fm, area, flow)[driver] for tr, fm in zip(transients, base_model,
-                                                                                    strict=True)])
-    den = float(np.sqrt(np.mean(u * u)))
-    r = np.concatenate(base_resid)
-    return float(np.sqrt(np.mean(r * r))) / den if den > 0 else float("nan")
+def _gain_scale(signature, transients, base_resid, base_model, area, flow) -> float:
+    """rms of the residual over rms of part 1's law of its driver (the transient-mode gain scale)."""
+    fit = signature.get("fit") or {}
+    if fit.get("driver") not in ("dp", "q", "y"):
+        return float("nan")
+    return _rms_ratio(transients, base_resid, base_model, area, flow, fit["driver"], fit["law"],
+                      float(fit.get("eps") or 0.0), float(fit.get("threshold") or 0.0))
 
 
 def _test_speeds(transients) -> list[float]:
