@@ -51,9 +51,11 @@ class SamplerSettings:
     move : str
         ``"de"`` (default: differential evolution 80% + stretch 20%, which follows the long
         (log α_V, log p_R) ridges with τ about three times shorter than the stretch move on rig-A),
-        ``"stretch"`` (emcee's default) or ``"de+laplace"`` (``"de"`` with a share of independence
+        ``"stretch"`` (emcee's default), ``"de+laplace"`` (``"de"`` with a share of independence
         moves from the Laplace approximation, :class:`LaplaceIndependenceMove`: for nearly Gaussian
-        posteriors such as whole records).
+        posteriors such as whole records) or ``"de+pilot"`` (``"de+laplace"`` with the proposal's centre and
+        covariance from a discarded pilot run of ``"de"``, :func:`pilot_proposal`: where no reliable
+        covariance is known in advance).
     """
 
     n_ensembles: int = 3
@@ -162,10 +164,31 @@ class LaplaceIndependenceMove:
         return q, self.log_density(coords) - self.log_density(q)
 
 
+#: Share of a pilot run's steps discarded before its covariance is estimated (its own burn-in).
+PILOT_BURN = 0.5
+
+
+def pilot_proposal(chains: np.ndarray) -> LaplaceIndependenceMove | None:
+    """The independence proposal of ``"de+pilot"`` from a pilot run, shape (n_ensembles, n_steps, n_walkers, ndim).
+
+    Centre and covariance are the median and covariance of the pilot's second half over all ensembles and
+    walkers. The pilot is discarded and the proposal then held fixed, so the chain that follows is exact
+    (adaptation in the warm-up only, as Stan's); a poor estimate costs efficiency, not correctness. None if the
+    covariance is not positive definite (the run continues with plain DE).
+    """
+    kept = chains[:, int(PILOT_BURN * chains.shape[1]):]
+    flat = kept.reshape(-1, kept.shape[-1])
+    cov = np.atleast_2d(np.cov(flat.T))
+    try:
+        return LaplaceIndependenceMove(np.median(flat, axis=0), cov)
+    except np.linalg.LinAlgError:
+        return None
+
+
 def _moves(name: str, independence: LaplaceIndependenceMove | None = None):
     import emcee  # here, not at module level: the CLI reads SamplerSettings' defaults without emcee/arviz
 
-    if name == "de+laplace":
+    if name in ("de+laplace", "de+pilot"):
         de = _moves("de")
         if independence is None:  # no positive-definite Laplace covariance: plain DE
             return de
@@ -292,19 +315,33 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     if scale is None:
         scale = laplace_covariance(log_prob, start, lower, upper)
     indep = LaplaceIndependenceMove(start, scale) if scale is not None and settings.move == "de+laplace" else None
+
+    def ensemble(moves):
+        if hasattr(log_prob, "batch"):  # one compiled call per ensemble step for all walkers
+            return emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=moves, vectorize=True)
+        return emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=moves)
+
+    pilot = settings.move == "de+pilot"
     samplers, states = [], []
     for ss in seeds:
         rng = np.random.default_rng(ss)
-        if hasattr(log_prob, "batch"):  # one compiled call per ensemble step for all walkers
-            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=_moves(settings.move, indep),
-                                      vectorize=True)
-        else:
-            s = emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=_moves(settings.move, indep))
+        s = ensemble(_moves("de" if pilot else settings.move, indep))
         # emcee copies NumPy's global state at construction; give each ensemble its own instead.
         s.random_state = np.random.RandomState(rng.integers(2**32 - 1)).get_state()
         p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)
         samplers.append(s)
         states.append(p0)
+    n_pilot = 0
+    if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
+        n_pilot = min(settings.check_every, settings.max_steps)
+        states = [s.run_mcmc(st, n_pilot, progress=False) for s, st in zip(samplers, states, strict=True)]
+        indep = pilot_proposal(np.stack([s.get_chain() for s in samplers]))
+        fresh = []
+        for s in samplers:
+            f = ensemble(_moves("de+laplace", indep))
+            f.random_state = s.random_state  # each ensemble's own stream continues
+            fresh.append(f)
+        samplers = fresh
 
     tau_prev = None
     reason = "step budget exhausted before τ settled"
@@ -350,4 +387,4 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     log_probs = np.stack([s.get_log_prob() for s in samplers])[:, burn:]
     acc = float(np.mean([s.acceptance_fraction for s in samplers]))
     return SamplingResult(chains, log_probs, tau, rhat, ess, n_steps, burn, converged, reason, acc,
-                          n_steps * settings.n_walkers * settings.n_ensembles)
+                          (n_steps + n_pilot) * settings.n_walkers * settings.n_ensembles)

@@ -181,8 +181,9 @@ def kernel_source() -> str:
     lines += [f"    if lay[{i}, 0]:\n        n += {n}" for i, (_, _, n) in enumerate(rows) if n]
     lines += ["    return n", "", "",
               "@njit(cache=True)",
-              "def _force_needs_signals(lay):"]
-    lines += [f"    if lay[{i}, 0]:\n        return True" for i, (_, mod, _) in enumerate(rows) if has(mod, "force")]
+              "def _force_needs_signals(lay, prm):"]
+    lines += guarded("force", lambda i, a, n: ([f"if {a}.force_acts({p(i)}):", "    return True"]
+                                               if has(rows[i][1], "force_acts") else ["return True"]))
     lines += ["    return False", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
               "def _rhs(t, s, ds, sig, prm, base, ts, ys, va, lay):",

@@ -139,7 +139,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         if not math.isfinite(prm[j]) and not prm[j] == math.inf:
             return out, STATUS_BAD_INPUT
     ns = _n_states(lay)
-    force_needs_signals = _force_needs_signals(lay)
+    force_needs_signals = _force_needs_signals(lay, prm)
     sig = np.full(N_SIGNALS, np.nan)
     x = np.zeros(ns)
     x_new = np.zeros(ns)

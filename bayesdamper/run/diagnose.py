@@ -44,7 +44,13 @@ from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.orifice import orifice_flow_and_slope
-from bayesdamper.physics.with_effects import STEPS_PER_SAMPLE, AugmentedProblem, effect_argument
+from bayesdamper.physics.with_effects import (
+    PROBLEM_RTOL,
+    SEARCH_RTOL,
+    STEPS_PER_SAMPLE,
+    AugmentedProblem,
+    effect_argument,
+)
 from bayesdamper.run.outfolder import (
     POSTERIORS_DIR,
     _load_finished,
@@ -57,6 +63,12 @@ from bayesdamper.run.stages import drift_summary, identify_all
 
 #: The generic effect: a candidate only with the structure the residual's signature found.
 GENERIC = "unnamed_dynamics"
+#: Sampler of the final model's posteriors: the baseline's, with the independence proposal from a discarded DE
+#: pilot ("de+pilot") and checks every 100 steps. The effects' solves cost 20-50 times the eq. (7) kernel's, and
+#: no Gauss-Newton covariance comes with these problems; on rig-A's final model τ fell from 12-14 to 2-3 steps
+#: and the evaluations per transient from 36 000-58 000 to 18 000-25 000 at the same intervals (benchmark in the
+#: closing note of stop 21); the test of the move is in tests/test_sampling.py.
+FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 100
 
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
@@ -123,6 +135,12 @@ def p_r_split(entries: list[dict]) -> dict:
     gap = abs(math.log(med["initial"] / med["reversal"]))
     return {"initial_Pa": med["initial"], "reversal_Pa": med["reversal"], "log_ratio": gap,
             "median_half_width_log": half, "agrees": bool(gap < half)}
+
+
+def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
+    """Stage-2 settings of the final model's posteriors (:data:`FINAL_MOVE`)."""
+    return dataclasses.replace(settings, sampler=dataclasses.replace(settings.sampler, move=FINAL_MOVE,
+                                                                     check_every=FINAL_CHECK_EVERY))
 
 
 def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
@@ -218,8 +236,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                                     {k: _rms_ratio(transients, base_resid, base_model, ds.damper.piston_area,
                                                    static.coefficients, k) for k in FLOW_DRIVERS})
     rec = {s.record.name: s for s in segs}
-    # the search caps a solve's steps (STEPS_PER_SAMPLE); the final model is solved without the cap
-    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients,
+    # the search caps a solve's steps (STEPS_PER_SAMPLE) at SEARCH_RTOL; the final model is solved without the cap
+    # at the problems' default tolerance
+    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients, rtol=SEARCH_RTOL,
                                            max_steps=STEPS_PER_SAMPLE * tr.time.size) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
     engine = ProfileEngine(aug, warm, workers, screen=screening_subset(_test_speeds(transients)))
@@ -244,12 +263,12 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if selected:
         flow_final = flow_for(fixed) or static.coefficients
         eff = effect_argument(fixed)
-        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, max_steps=None), eff)
-                          for a in aug]
+        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, rtol=PROBLEM_RTOL,
+                                                                  max_steps=None), eff) for a in aug]
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
                             unit="transient"):
-            final = calibrate_with(transients, final_problems, ds.damper, flow_final, settings, seed, workers,
-                                   progress)
+            final = calibrate_with(transients, final_problems, ds.damper, flow_final, final_settings(settings),
+                                   seed, workers, progress)
             progress.note(f"{sum(r.entry['converged'] for r in final)} converged")
         final_resid = _residuals_at_medians(final, final_problems)
     else:
@@ -297,7 +316,8 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                       "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs plateau noise, "
                                         f"alpha {STRUCTURE_ALPHA}"},
         "final_segments": final_entries,
-        "settings": settings.as_dict(), "seed": seed, "effects_considered": [getattr(n, "label", n) for n in names],
+        "settings": settings.as_dict(), "final_settings": final_settings(settings).as_dict(), "seed": seed,
+        "effects_considered": [getattr(n, "label", n) for n in names],
         "unnamed_candidates": [{"label": n.label, "structure": n.extra, "reading": n.reading,
                                 "search": {k: [v.lower, v.upper] for k, v in n.overrides.items()}}
                                for n in names if not isinstance(n, str) and n.effect == GENERIC],

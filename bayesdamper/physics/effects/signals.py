@@ -27,6 +27,9 @@ the state derivative it must fill):
 * ``chamber_flows(sig, z, p) -> (q1, q2)``: extra inflows into chambers 1 and 2 [m^3/s];
 * ``derivatives(sig, z, p, dz)``: state derivatives not written by the hooks above;
 * ``force(sig, z, p) -> f``: a force added to the measured force [N];
+* ``force_acts(p) -> bool``: whether ``force`` adds anything for these parameters (default: it does; an
+  effect that acts elsewhere for some structure values says so, and the kernel then computes the force at
+  the output times from Δp alone instead of evaluating every signal there);
 * ``initial(sig, p, z)``: the states at the start (sig holds t0, y_A, the velocity before t0 in VA and
   VP, Δp0 and Q_O(Δp0));
 * ``state_atol(p, atol_pa, out)``: absolute tolerances of the states (else the module's ``STATE_ATOL``).

@@ -25,8 +25,8 @@ from numba import njit
 from bayesdamper.physics.effects.base import Effect, EffectParam
 from bayesdamper.physics.effects.signals import DP, QO, VP, YP, Q
 
-__all__ = ["DRIVERS", "EFFECT", "LAWS", "MODES", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "initial",
-           "state_atol"]
+__all__ = ["DRIVERS", "EFFECT", "LAWS", "MODES", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "force_acts",
+           "initial", "state_atol"]
 
 #: Codes of the structure parameters (names used in reports).
 DRIVERS = ("dp", "q", "y", "v")
@@ -85,6 +85,12 @@ def flow(sig, z, p, dz):
 def force(sig, z, p):
     """o on the force (placement 0)."""
     return _output(sig, z, p) if int(p[6]) == 0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def force_acts(p):
+    """Only at placement 0."""
+    return int(p[6]) == 0
 
 
 @njit(cache=True, error_model="numpy")
