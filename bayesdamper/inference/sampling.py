@@ -164,8 +164,9 @@ class LaplaceIndependenceMove:
         return q, self.log_density(coords) - self.log_density(q)
 
 
-#: Share of a pilot run's steps discarded before its covariance is estimated (its own burn-in).
-PILOT_BURN = 0.5
+#: Steps of the discarded pilot run of ``"de+pilot"``, and the share of them discarded before its covariance is
+#: estimated (its own burn-in).
+PILOT_STEPS, PILOT_BURN = 100, 0.5
 
 
 def pilot_proposal(chains: np.ndarray) -> LaplaceIndependenceMove | None:
@@ -333,7 +334,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         states.append(p0)
     n_pilot = 0
     if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
-        n_pilot = min(settings.check_every, settings.max_steps)
+        n_pilot = min(PILOT_STEPS, settings.max_steps)
         states = [s.run_mcmc(st, n_pilot, progress=False) for s, st in zip(samplers, states, strict=True)]
         indep = pilot_proposal(np.stack([s.get_chain() for s in samplers]))
         fresh = []

@@ -177,10 +177,6 @@ PROBLEM_ATOL = 1.0  # [Pa]
 #: value, say); it counts as a failed solve there instead of taking up to 100 000 steps (stiff, decaying
 #: modes cost few steps: the solver is L-stable). rig-A's final model takes 0.23 steps per sample.
 STEPS_PER_SAMPLE = 3
-#: Relative tolerance of the candidate search's solves (the final model is solved at :data:`PROBLEM_RTOL`). The
-#: search compares sums of squares of residuals of tens to hundreds of N: on rig-A's final model the force at
-#: 1e-5 differs from that at 1e-6 by at most 0.02 N (noise 15 N), and a solve takes 15-20 % fewer steps.
-SEARCH_RTOL = 1e-5
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,19 +38,13 @@ from bayesdamper.diagnosis.residual import (
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
 from bayesdamper.diagnosis.sysid import apply_law
 from bayesdamper.diagnosis.unnamed import FLOW_DRIVERS, library_candidates, unnamed_candidates
-from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.inference.problem import LIKELIHOOD_RTOL, TransientProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.orifice import orifice_flow_and_slope
-from bayesdamper.physics.with_effects import (
-    PROBLEM_RTOL,
-    SEARCH_RTOL,
-    STEPS_PER_SAMPLE,
-    AugmentedProblem,
-    effect_argument,
-)
+from bayesdamper.physics.with_effects import STEPS_PER_SAMPLE, AugmentedProblem, effect_argument
 from bayesdamper.run.outfolder import (
     POSTERIORS_DIR,
     _load_finished,
@@ -64,11 +58,12 @@ from bayesdamper.run.stages import drift_summary, identify_all
 #: The generic effect: a candidate only with the structure the residual's signature found.
 GENERIC = "unnamed_dynamics"
 #: Sampler of the final model's posteriors: the baseline's, with the independence proposal from a discarded DE
-#: pilot ("de+pilot") and checks every 100 steps. The effects' solves cost 20-50 times the eq. (7) kernel's, and
-#: no Gauss-Newton covariance comes with these problems; on rig-A's final model τ fell from 12-14 to 2-3 steps
-#: and the evaluations per transient from 36 000-58 000 to 18 000-25 000 at the same intervals (benchmark in the
-#: closing note of stop 21); the test of the move is in tests/test_sampling.py.
-FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 100
+#: pilot ("de+pilot") and checks every 50 steps (the same stopping rule, checked more often: with τ of a few steps
+#: the rule is met long before the next check 100 steps on). The effects' solves cost 20-50 times the eq. (7)
+#: kernel's, and no Gauss-Newton covariance comes with these problems; on four of rig-A's transients with the final
+#: model τ fell from 12-14 to 2-4 steps and the evaluations from 36 000-58 000 to 9 000-14 000 at the same
+#: intervals (closing note of stop 21); the move's tests are in tests/test_sampling.py.
+FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 50
 
 
 def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
@@ -236,9 +231,9 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                                     {k: _rms_ratio(transients, base_resid, base_model, ds.damper.piston_area,
                                                    static.coefficients, k) for k in FLOW_DRIVERS})
     rec = {s.record.name: s for s in segs}
-    # the search caps a solve's steps (STEPS_PER_SAMPLE) at SEARCH_RTOL; the final model is solved without the cap
-    # at the problems' default tolerance
-    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients, rtol=SEARCH_RTOL,
+    # solved at the eq. (7) likelihood's tolerance (on rig-A's final model ≤ 0.02 N from rtol 1e-6, noise 15 N;
+    # 15-20 % fewer steps); the search caps a solve's steps (STEPS_PER_SAMPLE), the final model is solved uncapped
+    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients, rtol=LIKELIHOOD_RTOL,
                                            max_steps=STEPS_PER_SAMPLE * tr.time.size) for tr in transients]
     warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
     engine = ProfileEngine(aug, warm, workers, screen=screening_subset(_test_speeds(transients)))
@@ -263,8 +258,8 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     if selected:
         flow_final = flow_for(fixed) or static.coefficients
         eff = effect_argument(fixed)
-        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, rtol=PROBLEM_RTOL,
-                                                                  max_steps=None), eff) for a in aug]
+        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, max_steps=None), eff)
+                          for a in aug]
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
                             unit="transient"):
             final = calibrate_with(transients, final_problems, ds.damper, flow_final, final_settings(settings),
