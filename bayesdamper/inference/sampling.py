@@ -175,7 +175,11 @@ def pilot_proposal(chains: np.ndarray) -> LaplaceIndependenceMove | None:
     Centre and covariance are the median and covariance of the pilot's second half over all ensembles and
     walkers. The pilot is discarded and the proposal then held fixed, so the chain that follows is exact
     (adaptation in the warm-up only, as Stan's); a poor estimate costs efficiency, not correctness. None if the
-    covariance is not positive definite (the run continues with plain DE).
+    covariance is not positive definite (the run continues with plain DE). :func:`sample_posterior` also drops it
+    when its proposals are accepted less often than the pilot's DE moves (:func:`independence_acceptance`): on a
+    curved ridge a Gaussian proposal is mostly rejected, and its share of the moves would slow DE down. Otherwise
+    the independence moves are chosen with the probability that they are accepted (at most
+    :data:`INDEPENDENCE_SHARE`), so a proposal that covers only part of the target leaves DE the other steps.
     """
     kept = chains[:, int(PILOT_BURN * chains.shape[1]):]
     flat = kept.reshape(-1, kept.shape[-1])
@@ -186,15 +190,35 @@ def pilot_proposal(chains: np.ndarray) -> LaplaceIndependenceMove | None:
         return None
 
 
-def _moves(name: str, independence: LaplaceIndependenceMove | None = None):
+#: Independence proposals drawn to estimate their acceptance after the pilot (evaluations of the target).
+PILOT_TRIALS = 96
+
+
+def independence_acceptance(log_prob, move: LaplaceIndependenceMove, current: np.ndarray, current_lp: np.ndarray,
+                            rng: np.random.Generator) -> float:
+    """Mean Metropolis-Hastings acceptance of ``move``'s independence proposals from states of the target.
+
+    ``current`` (n, ndim) are draws of the target (the pilot's second half) with their log-densities
+    ``current_lp``; :data:`PILOT_TRIALS` of them each get a fresh proposal x', accepted with
+    min(1, π(x') g(x) / (π(x) g(x'))).
+    """
+    pick = rng.choice(current.shape[0], size=min(PILOT_TRIALS, current.shape[0]), replace=False)
+    x, lp_x = current[pick], current_lp[pick]
+    q = move.draw(pick.size, np.random.RandomState(rng.integers(2**32 - 1)))
+    lp_q = np.asarray(log_prob.batch(q) if hasattr(log_prob, "batch") else [log_prob(z) for z in q], dtype=float)
+    with np.errstate(invalid="ignore", over="ignore"):
+        log_r = lp_q - lp_x + move.log_density(x) - move.log_density(q)
+    return float(np.mean(np.where(np.isfinite(log_r), np.exp(np.minimum(log_r, 0.0)), 0.0)))
+
+
+def _moves(name: str, independence: LaplaceIndependenceMove | None = None, share: float = INDEPENDENCE_SHARE):
     import emcee  # here, not at module level: the CLI reads SamplerSettings' defaults without emcee/arviz
 
     if name in ("de+laplace", "de+pilot"):
         de = _moves("de")
         if independence is None:  # no positive-definite Laplace covariance: plain DE
             return de
-        keep = 1.0 - INDEPENDENCE_SHARE
-        return [(m, w * keep) for m, w in de] + [(emcee.moves.MHMove(independence.proposal), INDEPENDENCE_SHARE)]
+        return [(m, w * (1.0 - share)) for m, w in de] + [(emcee.moves.MHMove(independence.proposal), share)]
     if name == "stretch":
         return None
     if name == "de":
@@ -332,14 +356,27 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)
         samplers.append(s)
         states.append(p0)
-    n_pilot = 0
+    n_pilot = n_trials = 0
     if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
         n_pilot = min(PILOT_STEPS, settings.max_steps)
         states = [s.run_mcmc(st, n_pilot, progress=False) for s, st in zip(samplers, states, strict=True)]
-        indep = pilot_proposal(np.stack([s.get_chain() for s in samplers]))
+        pilot_chain = np.stack([s.get_chain() for s in samplers])
+        indep = pilot_proposal(pilot_chain)
+        share = INDEPENDENCE_SHARE
+        if indep is not None:  # kept only if accepted at least as often as DE was in the pilot (else plain DE), and
+            # chosen as often as it is accepted: a proposal that misses part of the target leaves DE more steps
+            half = int(PILOT_BURN * n_pilot)
+            lps = np.stack([s.get_log_prob() for s in samplers])[:, half:].reshape(-1)
+            rate = independence_acceptance(log_prob, indep, pilot_chain[:, half:].reshape(-1, ndim), lps,
+                                           np.random.default_rng(np.random.SeedSequence(seed).spawn(
+                                               settings.n_ensembles + 1)[-1]))
+            n_trials = min(PILOT_TRIALS, lps.size)
+            if rate < float(np.mean([s.acceptance_fraction for s in samplers])):
+                indep = None
+            share = min(rate, INDEPENDENCE_SHARE)
         fresh = []
         for s in samplers:
-            f = ensemble(_moves("de+laplace", indep))
+            f = ensemble(_moves("de+laplace", indep, share))
             f.random_state = s.random_state  # each ensemble's own stream continues
             fresh.append(f)
         samplers = fresh
@@ -388,4 +425,4 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     log_probs = np.stack([s.get_log_prob() for s in samplers])[:, burn:]
     acc = float(np.mean([s.acceptance_fraction for s in samplers]))
     return SamplingResult(chains, log_probs, tau, rhat, ess, n_steps, burn, converged, reason, acc,
-                          (n_steps + n_pilot) * settings.n_walkers * settings.n_ensembles)
+                          (n_steps + n_pilot) * settings.n_walkers * settings.n_ensembles + n_trials)
