@@ -21,7 +21,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
-from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j
+from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j, search_params
 from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
 from bayesdamper.diagnosis.unnamed import effect_reading
 from bayesdamper.physics.compose import ComposedEffects
@@ -326,6 +326,14 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if best is None:
             break
         fit = next(c for c in fits if c.effect == best["effect"])
+        if sum(len(search_params(specs[lab])) for lab in fit.labels) > 1:
+            # the selection's intervals with every parameter free (the search's are each axis' own)
+            cand = sel_specs + [specs[lab] for lab in fit.labels]
+            st = {sp.label: fit.effects[sp.effect] for sp in cand}
+            progress(f"diagnose: round {rnd + 1}, marginal intervals of {best['effect']}")
+            best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
+                                       new=fit.labels, max_iter=0, marginal=True).params
+            best["intervals"] = "marginal: inverse of the full profile-likelihood Hessian"
         for lab in fit.labels:
             selected.append(lab)
             sel_specs.append(specs[lab])
