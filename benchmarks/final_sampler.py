@@ -14,17 +14,15 @@ error, the cost should not).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
 
 from bayesdamper.diagnosis.loop import FixedEffectsProblem
 from bayesdamper.inference.problem import LIKELIHOOD_RTOL
-from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
 from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
-from bayesdamper.run.diagnose import FINAL_CHECK_EVERY, FINAL_MOVE
+from bayesdamper.run.diagnose import FINAL_MOVE, final_settings
 from bayesdamper.run.plan import plan_dataset
 
 
@@ -42,7 +40,8 @@ def main(argv=None) -> int:
     eff = effect_argument(d["selected_params"])
     plan = plan_dataset(a.data, 3.0, "auto")
     rec = {s.record.name: s for s in plan.segs}
-    moves = (("de", SamplerSettings().check_every), (FINAL_MOVE, FINAL_CHECK_EVERY))
+    base = StageTwoSettings()
+    moves = (("de", base), (FINAL_MOVE, final_settings(base)))  # the baseline's sampler, the final model's
     print(f"effects: {', '.join(d['selected'])}")
     print(f"{'transient':18s} {'move':9s} {'tau_max':>7s} {'evals':>7s} {'wall':>6s} conv  "
           "alpha_V 90 %          p_R 90 % [kPa]")
@@ -51,8 +50,7 @@ def main(argv=None) -> int:
         prob = AugmentedProblem.from_segmented(rec[tr.test], tr, plan.ds.damper, plan.static.coefficients,
                                                rtol=LIKELIHOOD_RTOL)
         fp = FixedEffectsProblem(prob, eff)
-        for move, check in moves:
-            st = dataclasses.replace(StageTwoSettings(), sampler=SamplerSettings(move=move, check_every=check))
+        for move, st in moves:
             t0 = time.perf_counter()
             e = identify_transient(tr, plan.ds.damper, plan.static.coefficients, st, a.seed, problem=fp).entry
             wall = time.perf_counter() - t0

@@ -26,6 +26,7 @@ from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.residual import _lag1
+from bayesdamper.inference.sampling import finite_difference_hessian
 
 #: Grid points of the outer search before local refinement: 6 for one new parameter, 4 per axis for two, 3 per
 #: axis for three or more (27 points: the local search refines from the best). A spec's ``starts`` add, for the
@@ -237,21 +238,7 @@ def marginal_sds(objective, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, condi
     free = np.flatnonzero((z - h >= lo) & (z + h <= hi))
     if free.size == 0:
         return conditional
-    d0 = objective(z)
-
-    def at(*moves):
-        x = z.copy()
-        for j, s in moves:
-            x[j] += s * h[j]
-        return objective(x)
-
-    H = np.empty((free.size, free.size))
-    for a, i in enumerate(free):
-        H[a, a] = (at((i, 1)) - 2 * d0 + at((i, -1))) / h[i] ** 2
-        for b in range(a):
-            j = free[b]
-            H[a, b] = H[b, a] = (at((i, 1), (j, 1)) - at((i, 1), (j, -1)) - at((i, -1), (j, 1))
-                                 + at((i, -1), (j, -1))) / (4 * h[i] * h[j])
+    H = finite_difference_hessian(objective, z, h, free)
     try:
         cov = np.linalg.inv(0.5 * H)
         np.linalg.cholesky(cov)

@@ -254,25 +254,36 @@ def initial_positions(start: np.ndarray, lower: np.ndarray, upper: np.ndarray, n
     return pos
 
 
+def finite_difference_hessian(f: Callable[[np.ndarray], float], x0: np.ndarray, h: np.ndarray,
+                              dims: np.ndarray | None = None) -> np.ndarray:
+    """Hessian of the scalar ``f`` at ``x0`` over the entries ``dims`` (default: all) by central differences with
+    per-entry steps ``h``: (f(x+h_i) − 2 f(x) + f(x−h_i)) / h_i² on the diagonal, the four-point formula off it."""
+    dims = np.arange(x0.size) if dims is None else np.asarray(dims)
+    f0 = f(x0)
+
+    def at(*moves):
+        x = np.array(x0, dtype=float)
+        for j, sgn in moves:
+            x[j] += sgn * h[j]
+        return f(x)
+
+    hess = np.empty((dims.size, dims.size))
+    for a, i in enumerate(dims):
+        hess[a, a] = (at((i, 1)) - 2 * f0 + at((i, -1))) / h[i] ** 2
+        for b in range(a):
+            j = dims[b]
+            hess[a, b] = hess[b, a] = (at((i, 1), (j, 1)) - at((i, 1), (j, -1)) - at((i, -1), (j, 1))
+                                       + at((i, -1), (j, -1))) / (4 * h[i] * h[j])
+    return hess
+
+
 def laplace_covariance(log_prob: Callable[[np.ndarray], float], x0: np.ndarray, lower: np.ndarray,
                        upper: np.ndarray) -> np.ndarray | None:
     """Covariance of the Laplace approximation at ``x0``: the inverse of minus the Hessian of the
     log-posterior by central finite differences. None if it is not positive definite (a ridge that
     runs into a prior bound, say): the caller then falls back to a fixed ball.
     """
-    n = x0.size
-    h = 1e-4 * (upper - lower)
-    f0 = log_prob(x0)
-    hess = np.empty((n, n))
-    for i in range(n):
-        ei = np.zeros(n)
-        ei[i] = h[i]
-        hess[i, i] = (log_prob(x0 + ei) - 2 * f0 + log_prob(x0 - ei)) / h[i] ** 2
-        for j in range(i):
-            ej = np.zeros(n)
-            ej[j] = h[j]
-            hess[i, j] = hess[j, i] = (log_prob(x0 + ei + ej) - log_prob(x0 + ei - ej) - log_prob(x0 - ei + ej)
-                                       + log_prob(x0 - ei - ej)) / (4 * h[i] * h[j])
+    hess = finite_difference_hessian(log_prob, x0, 1e-4 * (upper - lower))
     if not np.all(np.isfinite(hess)):
         return None
     try:
