@@ -74,10 +74,11 @@ def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     from types import SimpleNamespace
 
     import numpy as np
+    from profile_fakes import FakeProfileEngine
 
     from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
-    class Engine:
+    class Engine(FakeProfileEngine):
         problems = [SimpleNamespace(force=np.ones(50))]
 
         def evaluate(self, eff, flow=None, keep=False, idx=None):

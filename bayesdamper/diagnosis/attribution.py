@@ -31,8 +31,9 @@ __all__ = ["MAX_FOLDS", "SCREEN_ABOVE", "LovoScore", "screening_subset", "veloci
 MAX_FOLDS = 6
 #: Speeds closer than this are one test speed [m/s] (velocities estimated from the data differ in the last digits).
 SPEED_RESOLUTION_M_S = 1.0e-6
-#: Nelder-Mead iterations of a fold's re-fit (a local search from the full-data estimate).
-FOLD_ITER = 15
+#: Levenberg-Marquardt iterations of a fold's re-fit (a local search from the full-data estimate; it usually stops
+#: sooner, when an iteration gains less than :data:`bayesdamper.diagnosis.candidates.LM_DTOL`).
+FOLD_ITER = 4
 
 
 @dataclass(frozen=True)

@@ -12,19 +12,24 @@ current model's residuals (Quenouille's correction), and candidates are ranked b
 the Bayesian information criterion of a Gaussian model with one unknown scale on the pooled
 normalised residual, relative to the current model (negative is better; the per-transient
 parameters appear in both and cancel).
+
+The search of ψ: a coarse grid (on a screening subset of the transients when there are many) picks the start;
+one parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem
+(variable projection, :func:`_profile_lm`). Each transient's re-fit carries its Jacobian from the last one
+(:mod:`bayesdamper.diagnosis.inner_fit`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares, minimize, minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 
 from bayesdamper.core.errors import BayesDamperError
+from bayesdamper.diagnosis.engine import INFEASIBLE, LM_ITER, ProfileEngine, _profile_lm
 from bayesdamper.diagnosis.residual import _lag1
 from bayesdamper.inference.sampling import finite_difference_hessian
 
@@ -33,114 +38,6 @@ from bayesdamper.inference.sampling import finite_difference_hessian
 #: parameters they name, their values to a one-parameter grid, and otherwise the grid over the other axes with
 #: those parameters at their starts.
 GRID_POINTS = 6
-#: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
-INFEASIBLE = 1e12
-_PROBLEMS: list = []
-
-
-#: Tolerances of the per-transient least-squares re-fit (scipy's ``xtol``, ``ftol``). Looser ones (1e-3, 1e-5)
-#: would save 3-6 of 15-24 solves on rig-A (SSE within 1e-5); kept tight: the reference inertance case
-#: (tests/test_confusion.py), whose baseline sits at the box bounds of (α_V, p_R) and whose only candidate gains
-#: 26 in ΔBIC_eff, showed how little slack the search has.
-LS_XTOL, LS_FTOL = 1e-4, 1e-7
-#: Search box of the per-transient (log α_V, log p_R) re-fit.
-_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
-
-
-def _inner_fit(args):
-    """Least-squares (α_V, p_R) of one transient for a given effect set (worker task).
-
-    Trust-region least squares (scipy ``least_squares``, ``trf``, forward differences in log space) from the
-    warm start: about 15 solves where Nelder-Mead needed about 65; a failed solve inside the search makes the
-    residual huge, and if the search itself fails Nelder-Mead finishes from the warm start. Effect values whose
-    solve fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once.
-    """
-    k, eff, flow, warm = args
-    prob = _PROBLEMS[k]
-    if flow is not None:
-        prob = dataclasses.replace(prob, flow=flow)
-    f_meas = prob.force
-    big = 1e3 * (np.abs(f_meas) + 1.0)
-
-    def resid(x):
-        f, ok = prob.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
-        return (f - f_meas) if ok and np.all(np.isfinite(f)) else big
-
-    def sse(x):
-        if not (_BOX[0][0] <= x[0] <= _BOX[1][0] and _BOX[0][1] <= x[1] <= _BOX[1][1]):
-            return 1e300
-        r = resid(x)
-        return float(r @ r) if r is not big else 1e300
-
-    x0 = np.clip(np.asarray(warm, dtype=float), _BOX[0] + 1e-9, _BOX[1] - 1e-9)
-    if resid(x0) is big:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
-        return x0, 1e300, None
-    try:
-        ls = least_squares(resid, x0, method="trf", bounds=_BOX, diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
-                           ftol=LS_FTOL, max_nfev=40)
-        x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
-    except (ValueError, np.linalg.LinAlgError):
-        x_hat, ok_ls = x0, False
-    if not ok_ls:
-        simplex = np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.1]])
-        res = minimize(sse, x0, method="Nelder-Mead",
-                       options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
-                                "maxiter": 150})
-        x_hat = res.x
-    f, ok = prob.simulate_force(math.exp(x_hat[0]), math.exp(x_hat[1]), eff)
-    if not (ok and np.all(np.isfinite(f))):
-        return x_hat, 1e300, None
-    r = f - f_meas
-    return x_hat, float(r @ r), r
-
-
-@dataclass
-class ProfileEngine:
-    """Evaluates S_k(ψ) for all transients (in parallel), warm-starting each from its last optimum.
-
-    ``screen``: transients of the searches' grid stage
-    (:func:`bayesdamper.diagnosis.attribution.screening_subset`; None: all).
-    """
-
-    problems: list
-    warm: np.ndarray  # (n, 2) log α_V, log p_R
-    workers: int = 1
-    screen: np.ndarray | None = None
-
-    def __post_init__(self):
-        global _PROBLEMS
-        _PROBLEMS = self.problems
-        self._pool = None
-        if self.workers > 1:
-            import multiprocessing as mp
-
-            from bayesdamper.physics.compose import warm_up
-
-            warm_up()  # compiled once here, inherited by the forked workers
-
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
-
-    def close(self):
-        if self._pool is not None:
-            self._pool.shutdown()
-
-    def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
-        """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
-        these transients only (then the arrays are over ``idx``)."""
-        ks = range(len(self.problems)) if idx is None else [int(i) for i in idx]
-        tasks = [(k, eff, flow, self.warm[k]) for k in ks]
-        if self._pool is None:
-            out = [_inner_fit(t) for t in tasks]
-        else:
-            out = list(self._pool.map(_inner_fit, tasks, chunksize=max(1, len(tasks) // (4 * self.workers))))
-        xs = np.array([o[0] for o in out])
-        sse = np.array([o[1] for o in out])
-        if keep and idx is None:
-            self.warm = xs
-        return sse, xs, [o[2] for o in out]
-
-
 @dataclass
 class CandidateFit:
     """Outcome of fitting one candidate (or several jointly): shared parameters, score, per-transient state."""
@@ -265,6 +162,10 @@ def pooled_j(residuals: list[np.ndarray], forces: list[np.ndarray]) -> float:
     return math.sqrt(num / den)
 
 
+#: Nelder-Mead iterations and objective tolerance after a refinement from the grid that did not converge.
+NM_ITER, NM_FATOL = 40, 0.05
+
+
 def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict, current_sse: np.ndarray,
                   n_eff: np.ndarray, flow_for, pack) -> CandidateFit:
     """Profile the shared parameters of one candidate (effects in ``fixed`` held) and score it.
@@ -298,7 +199,8 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     idx : ndarray of int, optional
         Fit on these transients only (leave-velocities-out), then no interval is computed.
     max_iter : int, optional
-        Nelder-Mead iterations (default 40; 0: none, the score and intervals at ``start``).
+        Levenberg-Marquardt iterations of the local refinement (:func:`_profile_lm`; default :data:`LM_ITER`;
+        0: none, the score and intervals at ``start``).
     marginal : bool
         Intervals from the full Hessian of the profile objective (:func:`marginal_sds`: each parameter's
         uncertainty with the others free) instead of each axis' own curvature (the others held at the optimum,
@@ -326,7 +228,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             i += len(ps)
         return e
 
-    def make_objective(rows, memo, score):
+    detail: dict = {}  # z key -> (fitted (log α_V, log p_R), residuals) of the objective's transients
+
+    def make_objective(rows, memo, score, keep_detail=False):
         """``score(pooled SSE)`` of the transients ``rows`` at z (memoised; infeasible flow: INFEASIBLE)."""
         def f(z):
             z = np.clip(np.asarray(z, dtype=float), lo, hi)
@@ -338,12 +242,14 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                 except BayesDamperError:  # e.g. friction larger than the plateau forces allow
                     memo[key] = INFEASIBLE
                     return memo[key]
-                sse, _, _ = engine.evaluate(pack(e), flow, idx=rows)
+                sse, xs, resid = engine.evaluate(pack(e), flow, idx=rows)
                 memo[key] = score(max(float(np.sum(sse)), 1e-300))
+                if keep_detail:
+                    detail[key] = (xs, resid)
             return memo[key]
         return f
 
-    objective = make_objective(sel, cache, lambda s: float(n_total * math.log(s / cur)))
+    objective = make_objective(sel, cache, lambda s: float(n_total * math.log(s / cur)), keep_detail=True)
     # the grid only picks the local search's start: on the screening subset when there is one
     grid_objective = objective if screen is None else make_objective(screen, grid_cache, math.log)
 
@@ -390,14 +296,23 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                     cands.append(z)
             vals = [grid_objective(z) for z in cands]
             best = cands[int(np.argmin(vals))]
-        step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)
-        simplex = np.vstack([best] + [best + np.eye(len(flat))[j] * step[j] for j in range(len(flat))])
         z_hat = best
         if max_iter != 0:  # 0: evaluate at the start (intervals of a known optimum)
-            res = minimize(objective, best, method="Nelder-Mead",
-                           options={"initial_simplex": simplex, "xatol": 0.01, "fatol": 0.05,
-                                    "maxiter": max_iter or 40})
-            z_hat = np.clip(res.x, lo, hi) if res.fun < objective(best) else best
+            z_hat, done = _profile_lm(engine, best, lo, hi, sel, objective, detail, effects_at, flow_for, pack,
+                                      max_iter or LM_ITER, n_total)
+            if not done and grid_dims and objective(z_hat) < 0.0:
+                # a search from the grid whose refinement did not converge, where the candidate improves on the
+                # current model: Nelder-Mead from where it stopped, with the grid axes' exploratory simplex (a sixth
+                # of their range), as the search was before the refinement existed (an effect that nowhere the
+                # grid and the refinement looked improves on the model, e.g. rig-A's accumulator after the first
+                # round at ΔBIC_eff +1566, is not searched further)
+                step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)
+                simplex = np.vstack([z_hat] + [z_hat + np.eye(len(flat))[j] * step[j] for j in range(len(flat))])
+                res = minimize(objective, z_hat, method="Nelder-Mead",
+                               options={"initial_simplex": simplex, "xatol": 0.01, "fatol": NM_FATOL,
+                                        "maxiter": NM_ITER})
+                if res.fun < objective(z_hat):
+                    z_hat = np.clip(res.x, lo, hi)
     d_hat = objective(z_hat)
     e_hat = effects_at(z_hat)
     n_evals = len(cache) + len(grid_cache)

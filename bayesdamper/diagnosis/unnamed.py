@@ -135,6 +135,10 @@ def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_sca
     to_flow = -flow_slope / area
     dynamics = {"natural_frequency_Hz": SearchParam("natural_frequency_Hz", lo_f, hi_f, True),
                 "damping_ratio": SearchParam("damping_ratio", lo_z, hi_z, True)}
+    # the searches also start at part 1's estimate: its poles, and a gain of its DC gain (low-pass) or of the
+    # rms scale of the residual over the driver's law, either sign (transient); the boxes' coarse grid (3 points
+    # per axis: 0 and +-30 times the scale for a transient gain) can miss a narrow optimum
+    poles = {"natural_frequency_Hz": (f,), "damping_ratio": (zeta,)}
     out = []
     for placement, unit in (("force", 1.0), ("flow", to_flow)):
         where = f"acting on the {placement}" + (" path" if placement == "flow" else "")
@@ -145,15 +149,18 @@ def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_sca
                     continue
                 sign = math.copysign(1.0, gain)
                 g = SearchParam("gain", sign * abs(gain) / GAIN_FACTOR, sign * abs(gain) * GAIN_FACTOR, True, sign)
+                g0 = (gain,)
             else:
                 top = GAIN_FACTOR * gain_scale * abs(unit)
                 if not (math.isfinite(top) and top > 0.0):
                     continue
                 g = SearchParam("gain", -top, top, False)
+                g0 = (-top / GAIN_FACTOR, top / GAIN_FACTOR)
             code = {"placement": float(_ud.PLACEMENTS.index(placement)), "mode": float(_ud.MODES.index(mode))}
             out.append(CandidateSpec(f"unnamed_dynamics@{placement}:{mode}", {"gain": g, **dynamics},
                                      {**extra, **code},
-                                     f"driven by {_DRIVER_TEXT[driver]}{_LAW_TEXT[law]}, {where} ({mode})"))
+                                     f"driven by {_DRIVER_TEXT[driver]}{_LAW_TEXT[law]}, {where} ({mode})",
+                                     {"gain": g0, **poles}))
     for other, scale in (other_scales or {}).items():
         top = GAIN_FACTOR * scale * abs(to_flow)
         if other == driver or other not in FLOW_DRIVERS or not (math.isfinite(top) and top > 0.0):
@@ -162,7 +169,8 @@ def unnamed_candidates(signature: dict, area: float, flow_slope: float, gain_sca
                                  {"gain": SearchParam("gain", -top, top, False), **dynamics},
                                  {"driver": float(_DRIVER_CODE[other]), "law": 0.0, "threshold": 0.0,
                                   "placement": 1.0, "mode": float(_ud.MODES.index("transient"))},
-                                 f"driven by {_DRIVER_TEXT[other]}, acting on the flow path (transient)"))
+                                 f"driven by {_DRIVER_TEXT[other]}, acting on the flow path (transient)",
+                                 {"gain": (-top / GAIN_FACTOR, top / GAIN_FACTOR), **poles}))
     return out
 
 

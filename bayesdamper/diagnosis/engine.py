@@ -1,0 +1,276 @@
+"""The profile search's engine: every transient's (α_V, p_R) re-fitted for given shared parameters, in parallel,
+and the shared parameters' Levenberg-Marquardt refinement by variable projection.
+
+:class:`ProfileEngine` evaluates S_k(ψ), the per-transient sums of squares of eq. (9) at their least-squares
+(log α_V, log p_R), with worker processes; each re-fit carries its transient's Jacobian from the last one
+(:mod:`bayesdamper.diagnosis.inner_fit`). :func:`_profile_lm` refines the shared parameters of a candidate
+(:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares, minimize
+
+from bayesdamper.core.errors import BayesDamperError
+from bayesdamper.diagnosis.inner_fit import lm_step, refit
+
+#: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
+INFEASIBLE = 1e12
+_PROBLEMS: list = []
+
+
+#: Tolerances of the per-transient least-squares re-fit (scipy's ``xtol``, ``ftol``). Looser ones (1e-3, 1e-5)
+#: would save 3-6 of 15-24 solves on rig-A (SSE within 1e-5); kept tight: the reference inertance case
+#: (tests/test_confusion.py), whose baseline sits at the box bounds of (α_V, p_R) and whose only candidate gains
+#: 26 in ΔBIC_eff, showed how little slack the search has.
+LS_XTOL, LS_FTOL = 1e-4, 1e-7
+#: Search box of the per-transient (log α_V, log p_R) re-fit.
+_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
+
+
+def _inner_fit(args):
+    """Least-squares (α_V, p_R) of one transient for a given effect set (worker task).
+
+    Levenberg-Marquardt with the Jacobian carried from the transient's last re-fit
+    (:func:`bayesdamper.diagnosis.inner_fit.refit`: 4-6 solves where scipy's ``least_squares`` with forward
+    differences needed 15-24) from the warm start; if it does not converge, ``least_squares`` (``trf``) and then
+    Nelder-Mead finish from its best point. Effect values whose solve fails at the warm start itself (a
+    chattering valve past the step cap, say) are infeasible at once. Returns (x̂, SSE, residual, Jacobian).
+    """
+    k, eff, flow, warm, jac = args
+    prob = _PROBLEMS[k]
+    if flow is not None:
+        prob = dataclasses.replace(prob, flow=flow)
+    f_meas = prob.force
+    big = 1e3 * (np.abs(f_meas) + 1.0)
+
+    def solve(x):
+        f, ok = prob.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
+        return (f - f_meas) if ok and np.all(np.isfinite(f)) else None
+
+    def resid(x):
+        r = solve(x)
+        return big if r is None else r
+
+    def sse(x):
+        if not (_BOX[0][0] <= x[0] <= _BOX[1][0] and _BOX[0][1] <= x[1] <= _BOX[1][1]):
+            return 1e300
+        r = resid(x)
+        return float(r @ r) if r is not big else 1e300
+
+    x0 = np.clip(np.asarray(warm, dtype=float), _BOX[0] + 1e-9, _BOX[1] - 1e-9)
+    fit = refit(solve, x0, _BOX[0], _BOX[1], jac)
+    if fit.r is None:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
+        return x0, 1e300, None, None
+    if fit.converged:
+        return fit.x, fit.sse, fit.r, fit.jac
+    x0 = np.clip(fit.x, _BOX[0] + 1e-9, _BOX[1] - 1e-9)
+    try:
+        ls = least_squares(resid, x0, method="trf", bounds=_BOX, diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
+                           ftol=LS_FTOL, max_nfev=40)
+        x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
+    except (ValueError, np.linalg.LinAlgError):
+        x_hat, ok_ls = x0, False
+    if not ok_ls:
+        simplex = np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.1]])
+        res = minimize(sse, x0, method="Nelder-Mead",
+                       options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
+                                "maxiter": 150})
+        x_hat = res.x if res.fun < sse(x0) else x0
+    r = solve(x_hat)
+    if r is None:
+        return x_hat, 1e300, None, None
+    return x_hat, float(r @ r), r, None
+
+
+def _psi_columns(args):
+    """Forward-difference columns ∂r/∂z_j of one transient at its fitted (α_V, p_R) (worker task).
+
+    ``effs``/``flows``: the effect argument and flow coefficients at z + h_j e_j for each j; a perturbed solve
+    that fails gives a zero column (the direction is then left to the damping).
+    """
+    k, effs, flows, x, r0, hs = args
+    prob = _PROBLEMS[k]
+    cols = np.zeros((r0.size, len(effs)))
+    for j, (eff, flow, h) in enumerate(zip(effs, flows, hs, strict=True)):
+        pb = prob if flow is None else dataclasses.replace(prob, flow=flow)
+        f, ok = pb.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
+        if ok and np.all(np.isfinite(f)):
+            cols[:, j] = ((f - pb.force) - r0) / h
+    return cols
+
+
+@dataclass
+class ProfileEngine:
+    """Evaluates S_k(ψ) for all transients (in parallel), each re-fit starting from the current model's optimum
+    (``warm``) with the Jacobian its transient's last re-fit ended with (``jac``, :mod:`.inner_fit`).
+
+    ``screen``: transients of the searches' grid stage
+    (:func:`bayesdamper.diagnosis.attribution.screening_subset`; None: all).
+    """
+
+    problems: list
+    warm: np.ndarray  # (n, 2) log α_V, log p_R
+    workers: int = 1
+    screen: np.ndarray | None = None
+
+    def __post_init__(self):
+        _PROBLEMS[:] = self.problems  # in place: the forked workers and importers see the same list
+        self.jac: list = [None] * len(self.problems)  # each transient's Jacobian from its last re-fit
+        self._pool = None
+        if self.workers > 1:
+            import multiprocessing as mp
+
+            from bayesdamper.physics.compose import warm_up
+
+            warm_up()  # compiled once here, inherited by the forked workers
+
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=ctx)
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown()
+
+    def _map(self, fn, tasks):
+        if self._pool is None:
+            return [fn(t) for t in tasks]
+        return list(self._pool.map(fn, tasks, chunksize=max(1, len(tasks) // (4 * self.workers))))
+
+    def sensitivities(self, effs: list, flows: list, hs: np.ndarray, idx, xs: np.ndarray, resid: list) -> list:
+        """Per transient of ``idx``: forward-difference Jacobian of its residual with respect to the shared
+        parameters (columns: the effect arguments ``effs`` and flows ``flows`` at steps ``hs``), at its fitted
+        (log α_V, log p_R) ``xs`` and residual ``resid`` (None: infeasible, no columns)."""
+        ks = [int(i) for i in idx]
+        tasks = [(k, effs, flows, x, r, hs) for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
+        cols = iter(self._map(_psi_columns, tasks))
+        return [next(cols) if r is not None else None for r in resid]
+
+    def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
+        """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
+        these transients only (then the arrays are over ``idx``)."""
+        ks = range(len(self.problems)) if idx is None else [int(i) for i in idx]
+        tasks = [(k, eff, flow, self.warm[k], self.jac[k]) for k in ks]
+        out = self._map(_inner_fit, tasks)
+        xs = np.array([o[0] for o in out])
+        sse = np.array([o[1] for o in out])
+        for k, o in zip(ks, out, strict=True):
+            if o[3] is not None:
+                self.jac[k] = o[3]
+        if keep and idx is None:
+            self.warm = xs
+        return sse, xs, [o[2] for o in out]
+
+
+
+
+#: Levenberg-Marquardt iterations of a search's local refinement (:func:`_profile_lm`).
+LM_ITER = 12
+#: Forward-difference step of the shared parameters, as a fraction of each one's search range.
+PSI_STEP = 1e-3
+#: The refinement stops when an iteration lowers the objective (ΔBIC_eff units) by less than this.
+LM_DTOL = 0.05
+#: First trust radius of the refinement's steps, in units of each parameter's search range.
+LM_RADIUS = 0.25
+#: Objective evaluations an iteration may spend on rejected steps before the refinement stops.
+LM_REJECTS = 4
+
+
+def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_for, pack, max_iter: int,
+                d_scale: float):
+    """Local refinement of the profile objective by Levenberg-Marquardt with variable projection.
+
+    The profile objective is S(z) = Σ_k ‖r_k(z, x̂_k(z))‖² with x̂_k each transient's least-squares (log α_V,
+    log p_R). Its Gauss-Newton model (Golub & Pereyra's variable projection, in Kaufman's form) uses for each
+    transient the Jacobian of r_k with respect to z at x̂_k with the directions its own (α_V, p_R) can absorb
+    projected out: J̃_k = (I − Q_k Q_kᵀ) ∂r_k/∂z, Q_k an orthonormal basis of ∂r_k/∂x (the Jacobian the
+    transient's re-fit ended with; a parameter at its box bound absorbs nothing and its column is left out).
+    Each iteration costs n forward-difference solves per transient for ∂r_k/∂z and one evaluation of the
+    objective per trial step: the Gauss-Newton step within a trust radius, backtracked along its direction until
+    the objective falls. It converges in a few iterations where the derivative-free Nelder-Mead needed tens of
+    evaluations of S (each a re-fit of every transient). Stops after ``max_iter`` iterations, when an iteration
+    gains less than :data:`LM_DTOL`, or when :data:`LM_REJECTS` trial steps in a row fail. Returns the best z
+    and whether the refinement converged (the model predicts, or a full Gauss-Newton step gains, less than
+    :data:`LM_DTOL`), not merely ran out of iterations or of steps the objective accepted (its model then misses
+    the objective: bounds reached by the per-transient fits, a rough profile).
+    """
+    z = np.clip(np.asarray(z0, dtype=float), lo, hi)
+    d = objective(z)
+    key = tuple(np.round(z, 6))
+    if d >= INFEASIBLE or key not in detail:
+        return z, True
+    xs, resid = detail[key]
+    h = PSI_STEP * (hi - lo)
+    radius = LM_RADIUS
+    for _ in range(max_iter):
+        hs = np.where(z + h > hi, -h, h)
+        effs, flows, ok = [], [], np.ones(z.size, dtype=bool)
+        for j in range(z.size):
+            zj = z.copy()
+            zj[j] += hs[j]
+            e = effects_at(zj)
+            try:
+                flows.append(flow_for(e))
+            except BayesDamperError:
+                flows.append(None)
+                ok[j] = False
+            effs.append(pack(e))
+        cols = engine.sensitivities(effs, flows, hs, rows, xs, resid)
+        A = np.zeros((z.size, z.size))
+        g = np.zeros(z.size)
+        scale = d_scale / max(sum(float(r @ r) for r in resid if r is not None), 1e-300)
+        for k, c, r, x in zip(rows, cols, resid, xs, strict=True):
+            if c is None:
+                continue
+            c = c * ok
+            jx = engine.jac[int(k)]
+            # only what the re-fit can absorb is projected out: not the direction of a parameter held at its bound
+            inside = (x > _BOX[0] + 1e-6) & (x < _BOX[1] - 1e-6)
+            if jx is not None and inside.any():
+                q = np.linalg.qr(jx[:, inside])[0]
+                c = c - q @ (q.T @ c)
+            A += c.T @ c
+            g += c.T @ r
+        dz, pred = lm_step(A, g, z, lo, hi, 0.0)
+        lam = 0.0
+        while pred <= 0.0 and lam < 1e8:  # a step cut by the bounds that the model says cannot gain
+            lam = max(4.0 * lam, 1e-3)
+            dz, pred = lm_step(A, g, z, lo, hi, lam)
+        if pred <= 0.0:
+            return z, True
+        # a trust region on the step (in units of each parameter's range), then backtracking along it by quadratic
+        # interpolation (Nocedal & Wright 3.5): parameters searched on log scales and large residuals make the
+        # Gauss-Newton step overshoot by far more than a fixed damping would correct
+        size = float(np.linalg.norm(dz / (hi - lo)))
+        t = t0 = min(1.0, radius / size) if size > 0 else 1.0
+        slope = 2.0 * float(g @ dz) * scale  # dD/dt at t = 0 (D = n log S: dD = n dS / S)
+        for _ in range(LM_REJECTS):
+            z_new = np.clip(z + t * dz, lo, hi)
+            d_new = objective(z_new)
+            if d_new < d:
+                break
+            curv = d_new - d - slope * t
+            t_min = -slope * t * t / (2.0 * curv) if curv > 0 else 0.1 * t
+            t = float(np.clip(t_min, 0.01 * t, 0.5 * t))
+        else:
+            return z, False
+        # the next radius: twice the accepted step if it was cut back, four times if the radius held (a long way
+        # to go at a few times the step each iteration), never below a tenth of the first
+        radius = max((2.0 if t < t0 else 4.0) * t * size, 0.1 * LM_RADIUS)
+        gain = d - d_new
+        z, d = z_new, d_new
+        key = tuple(np.round(z, 6))
+        if key not in detail:
+            return z, False
+        xs, resid = detail[key]
+        if pred * scale < LM_DTOL or (gain < LM_DTOL and t == 1.0):  # the model, or a full step, sees no more
+            return z, True
+        if gain < LM_DTOL:  # a step cut back to a small gain: the model misses the objective here
+            return z, False
+    return z, False

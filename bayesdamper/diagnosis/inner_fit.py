@@ -1,0 +1,155 @@
+"""The per-transient re-fit inside the profile search: Gauss-Newton on (log α_V, log p_R) with a carried Jacobian.
+
+Every evaluation of a candidate's profile objective S(ψ) re-fits each transient's two parameters by least
+squares on eq. (9) (:mod:`bayesdamper.diagnosis.candidates`). scipy's trust-region ``least_squares`` estimates
+the 2-column Jacobian afresh by forward differences at every iterate: 3 solves an iteration, 15-24 a re-fit on
+rig-A. Here a Levenberg-Marquardt iteration carries the Jacobian instead: it starts from the one the last re-fit
+of the same transient ended with (the search moves ψ a little at a time), corrects it along every step taken
+(Broyden's rank-one update), and re-computes it by forward differences only when it is stale (a step failed, or
+the iterate moved more than :data:`JAC_REUSE` since the last difference) or to confirm convergence. Convergence
+is declared only with a Jacobian no older than :data:`JAC_REUSE`: the Gauss-Newton step it predicts is below
+:data:`XTOL` (in log units, 0.01 % of the parameter) or the decrease it predicts below :data:`FTOL` of the sum
+of squares (``least_squares``' own ``ftol``; its ``xtol`` 1e-4 is relative to ‖x‖ ≈ 14), or a step of an exact
+Jacobian predicted to gain less than 10 :data:`FTOL` fails (the noise floor of differences and solver).
+
+The parameters live in a box; a parameter at a bound whose gradient points out of the box is held there (the
+reduced problem is solved for the others), so optima on the bounds are reached as in the projected methods.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Gauss-Newton step [log units] below which the fit has converged (with a fresh Jacobian).
+XTOL = 1e-4
+#: Predicted relative decrease of the sum of squares below which the fit has converged (with a fresh Jacobian):
+#: the search's ``least_squares`` ``ftol``. Near the optimum forward differences (error ~ h × curvature) and the
+#: solver's own tolerance make steps predicted to gain less fail about as often as they succeed.
+FTOL = 1e-6
+#: Forward-difference step relative to max(1, |x|) (scipy's ``diff_step`` convention; the search used 1e-4).
+DIFF_STEP = 1e-4
+#: Distance [log units] the iterate may move from where the Jacobian was last differenced before it is stale.
+JAC_REUSE = 0.02
+#: Largest Levenberg-Marquardt damping (relative to the diagonal of JᵀJ) tried before a step is given up.
+LAM_MAX = 1e8
+#: Solves after which the iteration gives up (the caller then falls back to scipy's ``least_squares``).
+MAX_SOLVES = 30
+
+
+@dataclass
+class InnerFit:
+    """Outcome of one re-fit: optimum, sum of squares, residual, the Jacobian there, solves spent."""
+
+    x: np.ndarray
+    sse: float
+    r: np.ndarray | None
+    jac: np.ndarray | None
+    n_solves: int
+    converged: bool
+
+
+def _forward_jacobian(resid, x, r, hi):
+    """Forward-difference Jacobian at x (steps away from the upper bound); None if a perturbed solve fails."""
+    J = np.empty((r.size, x.size))
+    for j in range(x.size):
+        h = DIFF_STEP * max(1.0, abs(x[j]))
+        if x[j] + h > hi[j]:
+            h = -h
+        xp = x.copy()
+        xp[j] += h
+        rp = resid(xp)
+        if rp is None:
+            return None
+        J[:, j] = (rp - r) / h
+    return J
+
+
+def lm_step(A: np.ndarray, g: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+            lam: float) -> tuple[np.ndarray, float]:
+    """Levenberg-Marquardt step of a least-squares problem with JᵀJ = ``A`` and Jᵀr = ``g`` in the box [lo, hi].
+
+    The damping ``lam`` multiplies the diagonal of A; a parameter at a bound whose gradient points out of the box
+    is held there and the reduced system solved for the others; the step is then cut to the box. Returns the step
+    and the decrease of r·r the linear model predicts for it (≤ 0: the cut step cannot gain).
+    """
+    held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
+    free = ~held
+    dx = np.zeros_like(x)
+    if free.any():
+        Af = A[np.ix_(free, free)]
+        Af = Af + lam * np.diag(np.diag(Af))
+        try:
+            dx[free] = -np.linalg.solve(Af, g[free])
+        except np.linalg.LinAlgError:
+            dx[free] = -np.linalg.lstsq(Af, g[free], rcond=None)[0]
+    dx = np.clip(x + dx, lo, hi) - x
+    return dx, -float(2.0 * g @ dx + dx @ A @ dx)
+
+
+def _lm_step(J, r, x, lo, hi, lam):
+    return lm_step(J.T @ J, J.T @ r, x, lo, hi, lam)
+
+
+def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None) -> InnerFit:
+    """Least-squares minimum of ``resid(x)`` (an array, or None for a failed solve) in the box [lo, hi].
+
+    ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). Returns the best point found
+    and ``converged`` False when :data:`MAX_SOLVES` ran out or the Jacobian could not be differenced; an
+    infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
+    """
+    x = np.clip(np.asarray(x0, dtype=float), lo, hi)
+    r = resid(x)
+    n = 1
+    if r is None:
+        return InnerFit(x, float("inf"), None, None, n, False)
+    s = float(r @ r)
+    if jac is None:
+        J, moved = _forward_jacobian(resid, x, r, hi), 0.0
+        n += x.size
+        if J is None:
+            return InnerFit(x, s, r, None, n, False)
+    else:
+        J, moved = np.array(jac, dtype=float), np.inf
+    lam = 0.0
+    while n < MAX_SOLVES:
+        dx0, pred0 = _lm_step(J, r, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
+        if float(np.linalg.norm(dx0)) < XTOL or 0.0 <= pred0 <= FTOL * s:
+            if moved == 0.0:  # predicted by a Jacobian differenced here
+                return InnerFit(x, s, r, J, n, True)
+            J, moved, lam = _forward_jacobian(resid, x, r, hi), 0.0, 0.0
+            n += x.size
+            if J is None:
+                return InnerFit(x, s, r, None, n, False)
+            continue
+        dx, pred = (dx0, pred0) if lam == 0.0 else _lm_step(J, r, x, lo, hi, lam)
+        while pred <= 0.0 and lam < LAM_MAX:  # a step cut by the bounds that the model says cannot gain
+            lam = max(4.0 * lam, 1e-3)
+            dx, pred = _lm_step(J, r, x, lo, hi, lam)
+        if pred <= 0.0:
+            return InnerFit(x, s, r, J, n, moved == 0.0)
+        r_new = resid(x + dx)
+        n += 1
+        s_new = float(r_new @ r_new) if r_new is not None else np.inf
+        if s_new < s:
+            J = J + np.outer((r_new - r) - J @ dx, dx) / float(dx @ dx)  # Broyden's rank-one correction
+            # converged if the step gained less than FTOL, or gained what an exact Jacobian's model predicted to
+            # within FTOL (the model's error over the step bounds what a further step could gain)
+            done = (s - s_new <= FTOL * s and moved <= JAC_REUSE) or (moved == 0.0 and
+                                                                    abs(s - s_new - pred) <= FTOL * s)
+            x, r, s = x + dx, r_new, s_new
+            if done:
+                return InnerFit(x, s, r, J, n, True)
+            moved += float(np.linalg.norm(dx))
+            lam = 0.0 if lam < 1e-3 else 0.25 * lam
+        elif moved == 0.0 and pred <= 10.0 * FTOL * s:  # an exact Jacobian's small step failed: the noise floor
+            return InnerFit(x, s, r, J, n, True)
+        elif moved > 0.0:  # the Jacobian may be what failed: difference it here first
+            J, moved = _forward_jacobian(resid, x, r, hi), 0.0
+            n += x.size
+            if J is None:
+                return InnerFit(x, s, r, None, n, False)
+        else:
+            lam = max(4.0 * lam, 1e-3)
+    return InnerFit(x, s, r, J, n, False)

@@ -1,0 +1,185 @@
+"""The profile search's two least-squares engines, against scipy's ``least_squares`` at tight tolerance:
+the per-transient re-fit with a carried Jacobian (:mod:`bayesdamper.diagnosis.inner_fit`) and the shared
+parameters' Levenberg-Marquardt with variable projection (:func:`bayesdamper.diagnosis.candidates._profile_lm`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.optimize import least_squares
+
+from bayesdamper.diagnosis.inner_fit import refit
+
+LO, HI = np.array([-3.0, -3.0]), np.array([3.0, 3.0])
+
+
+def _decay(seed: int, shift: float = 0.0):
+    """A two-parameter nonlinear model with a model error (large residual), as a transient's (log α_V, log p_R)
+    fit: y = e^{x0} exp(-e^{x1} t) fitted to a decay with an added slow wobble and noise."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0.0, 3.0, 400)
+    data = 2.0 * np.exp(-1.3 * t) + 0.05 * np.sin(2.1 * t + shift) + 0.01 * rng.standard_normal(t.size)
+
+    def resid(x):
+        return math.exp(x[0]) * np.exp(-math.exp(x[1]) * t) - data
+
+    return resid
+
+
+def _reference(resid, x0, lo=LO, hi=HI):
+    return least_squares(resid, x0, bounds=(lo, hi), xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=2000)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_refit_reaches_the_tight_optimum_with_and_without_a_carried_jacobian(seed):
+    """Same sum of squares as scipy at 1e-14 to 1e-6 relative (the search's least-squares ftol is 1e-7 of each
+    transient's SSE, and its ΔBIC_eff is resolved to 0.05 on N_eff ~ 10^3-10^4: 1e-6 is well inside), from a
+    cold start and with the Jacobian of a neighbouring problem (the search's next point) carried over."""
+    count = [0]
+    res0 = _decay(seed)
+
+    def counted(f):
+        def g(x):
+            count[0] += 1
+            return f(x)
+        return g
+
+    x0 = np.array([0.0, 0.5])
+    ref = _reference(res0, x0)
+    cold = refit(counted(res0), x0, LO, HI)
+    assert cold.converged
+    assert cold.sse == pytest.approx(2 * ref.cost, rel=1e-6)
+    # the next point of a search: the data moved a little, the start is the old optimum's neighbourhood
+    res1 = _decay(seed, shift=0.05)
+    ref1 = _reference(res1, x0)
+    count[0] = 0
+    warm = refit(counted(res1), x0, LO, HI, jac=cold.jac)
+    n_warm = count[0]
+    assert warm.converged and warm.n_solves == n_warm
+    assert warm.sse == pytest.approx(2 * ref1.cost, rel=1e-6)
+    count[0] = 0
+    trf = least_squares(counted(res1), x0, bounds=(LO, HI), diff_step=1e-4, xtol=1e-4, ftol=1e-7)
+    assert n_warm < count[0]  # fewer solves than the search's former trust-region re-fit
+    assert 2 * trf.cost >= warm.sse * (1 - 1e-6)
+
+
+def test_refit_holds_a_parameter_at_its_bound():
+    """The optimum of x1 lies beyond the box: it is held at the bound and x0 still optimised (scipy agrees)."""
+    resid = _decay(4)
+    hi = np.array([3.0, -0.2])  # true rate 1.3 = e^0.26 > e^-0.2
+    ref = _reference(resid, np.array([0.0, -1.0]), LO, hi)
+    fit = refit(resid, np.array([0.0, -1.0]), LO, hi)
+    assert fit.converged
+    assert fit.x[1] == pytest.approx(-0.2)
+    assert fit.x[0] == pytest.approx(ref.x[0], abs=1e-4)
+    assert fit.sse == pytest.approx(2 * ref.cost, rel=1e-6)
+
+
+def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
+    """A failed solve at the start is infeasible (sse inf, no residual). Failed solves beyond x1 > 0.1 (a valve
+    that chatters past the step cap, say) are rejected steps: the re-fit never claims a convergence it did not
+    reach, and the search's worker (:func:`bayesdamper.diagnosis.candidates._inner_fit`), which then finishes
+    with scipy, returns a feasible point better than its start. (Neither it nor scipy's trust region alone, the
+    former worker, reaches the optimum on that hidden wall: 1.22 and 1.13 times its SSE.)"""
+    from bayesdamper.diagnosis import engine as E
+
+    resid = _decay(5)
+    out = refit(lambda x: None, np.array([0.0, 0.0]), LO, HI)
+    assert out.r is None and math.isinf(out.sse)
+
+    def guarded(x):
+        return None if x[1] > 0.1 else resid(x)
+
+    start = np.array([0.0, -1.0])
+    ref = _reference(resid, start, LO, np.array([3.0, 0.1]))
+    fit = refit(guarded, start, LO, HI)
+    assert fit.x[1] <= 0.1 and fit.sse <= float(resid(start) @ resid(start))
+    assert fit.converged is False or fit.sse == pytest.approx(2 * ref.cost, rel=1e-6)
+
+    # the same through the worker, in the search's coordinates (log α_V, log p_R) = x + (5, 12)
+    class Problem:
+        force = np.zeros(400)
+
+        def simulate_force(self, alpha_v, p_r, eff):
+            r = guarded(np.array([math.log(alpha_v) - 5.0, math.log(p_r) - 12.0]))
+            return (r, True) if r is not None else (np.full(400, np.nan), False)
+
+    E._PROBLEMS[:] = [Problem()]
+    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None))
+    assert r is not None and x_hat[1] - 12.0 <= 0.1
+    assert sse == pytest.approx(float(r @ r)) and sse < 0.9 * float(resid(start) @ resid(start))
+
+
+class _SeparableEngine:
+    """k transients r_k = x_k0 + x_k1·exp(-ψ0 t) + ψ1 t² − data_k: shared (ψ0, ψ1), per-transient x_k, data made
+    with ψ = (0.8, 0.05) plus a per-transient wobble the model lacks (large residuals). Implements the
+    engine interface ``fit_joint`` uses, its per-transient fits by scipy at tight tolerance."""
+
+    def __init__(self, n=6, seed=0):
+        rng = np.random.default_rng(seed)
+        self.t = np.linspace(0.0, 3.0, 300)
+        self.data = [1.0 + 0.3 * k + (2.0 - 0.1 * k) * np.exp(-0.8 * self.t) + 0.05 * self.t ** 2
+                     + 0.03 * np.sin((3 + k) * self.t) + 0.01 * rng.standard_normal(self.t.size) for k in range(n)]
+        self.problems = [type("P", (), {"force": d})() for d in self.data]
+        self.jac = [None] * n
+        self.screen = None
+        self.n_evaluate = 0
+
+    def _fit(self, k, e):
+        psi0, psi1 = e["valve_dynamics"]["time_constant_s"], e["valve_dynamics"]["opening_pressure_Pa"] * 1e-5
+        basis = np.column_stack([np.ones_like(self.t), np.exp(-psi0 * self.t)])
+        target = self.data[k] - psi1 * self.t ** 2
+        x, *_ = np.linalg.lstsq(basis, target, rcond=None)
+        return x, basis @ x - target, basis
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None):
+        self.n_evaluate += 1
+        ks = range(len(self.data)) if idx is None else [int(i) for i in idx]
+        out = [self._fit(k, eff) for k in ks]
+        for k, o in zip(ks, out, strict=True):
+            self.jac[k] = o[2]
+        return np.array([float(o[1] @ o[1]) for o in out]), np.array([o[0] for o in out]), [o[1] for o in out]
+
+    def sensitivities(self, effs, flows, hs, idx, xs, resid):
+        out = []
+        for k, x, r in zip([int(i) for i in idx], xs, resid, strict=True):
+            cols = []
+            for e, h in zip(effs, hs, strict=True):
+                psi0, psi1 = e["valve_dynamics"]["time_constant_s"], e["valve_dynamics"]["opening_pressure_Pa"] * 1e-5
+                rp = x[0] + x[1] * np.exp(-psi0 * self.t) - (self.data[k] - psi1 * self.t ** 2)
+                cols.append((rp - r) / h)
+            out.append(np.column_stack(cols))
+        return out
+
+
+def test_profile_levenberg_marquardt_finds_the_joint_least_squares_optimum():
+    """The shared parameters of a separable problem: the profile search (grid, then LM with variable projection)
+    reaches the joint least-squares optimum of all parameters that scipy finds at tight tolerance: its objective
+    N_eff log S to the search's stopping tolerance LM_DTOL, each parameter to 1 % of its log range."""
+    from bayesdamper.diagnosis import candidates as C
+    from bayesdamper.diagnosis.engine import LM_DTOL
+
+    eng = _SeparableEngine()
+    n = len(eng.data)
+    fit = C.fit_joint(eng, [C.CandidateSpec("valve_dynamics", overrides={
+        "time_constant_s": C.SearchParam("time_constant_s", 0.05, 5.0, True),
+        "opening_pressure_Pa": C.SearchParam("opening_pressure_Pa", 1e2, 1e5, True)})], {}, {},
+        np.full(n, 1.0), np.full(n, 100.0), lambda e: None, lambda e: e)
+
+    def joint(theta):
+        psi0, psi1 = math.exp(theta[0]), math.exp(theta[1]) * 1e-5
+        return np.concatenate([theta[2 + 2 * k] + theta[3 + 2 * k] * np.exp(-psi0 * eng.t) + psi1 * eng.t ** 2 - d
+                               for k, d in enumerate(eng.data)])
+
+    th0 = np.r_[math.log(0.5), math.log(3e3), np.tile([1.0, 1.0], n)]
+    ref = least_squares(joint, th0, xtol=1e-14, ftol=1e-14, gtol=1e-14, max_nfev=5000)
+    got = fit.effects["valve_dynamics"]
+    # resolved as the search resolves its objective D = N_eff log S (here N_eff = 600): to LM_DTOL = 0.05
+    assert 600.0 * math.log(float(np.sum(fit.sse)) / (2 * ref.cost)) == pytest.approx(0.0, abs=LM_DTOL)
+    assert math.log(got["time_constant_s"]) == pytest.approx(ref.x[0], abs=1e-2 * math.log(100.0))
+    assert math.log(got["opening_pressure_Pa"]) == pytest.approx(ref.x[1], abs=1e-2 * math.log(1e3))
+    # the grid's 16 points, LM, Nelder-Mead from where it stopped (its steps near the optimum are cut back: the
+    # large residual), the intervals: 70; the search before LM (grid + 40 Nelder-Mead iterations) took 65 here
+    assert eng.n_evaluate <= 75
