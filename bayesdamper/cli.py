@@ -204,36 +204,39 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bayesdamper: error: {err}", file=sys.stderr)
         return 2
     try:
-        if args.command == "check":
-            from bayesdamper.run.check import run_check
+        from bayesdamper.run.threads import one_blas_thread
 
-            run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit, mode=args.mode)
-        elif args.command == "simulate":
-            from bayesdamper.io.synthetic import run_simulate
-            from bayesdamper.physics.effects import parse_effect_specs
+        with one_blas_thread():  # the jobs parallelise with processes (bayesdamper.run.threads)
+            if args.command == "check":
+                from bayesdamper.run.check import run_check
 
-            run_simulate(args.out_dir, velocities_mm_s=args.velocities, alpha_v=args.alpha_v, p_r=args.p_r,
-                         noise_n=args.noise_n, noise_phi=args.noise_phi, seed=args.seed,
-                         sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
-                         effects=parse_effect_specs(args.effect))
-        elif args.command == "diagnose":
-            from bayesdamper.run.diagnose import run_diagnosis
+                run_check(args.data_dir, tmax=args.tmax, fit=not args.no_fit, mode=args.mode)
+            elif args.command == "simulate":
+                from bayesdamper.io.synthetic import run_simulate
+                from bayesdamper.physics.effects import parse_effect_specs
 
-            run_diagnosis(args.data_dir, args.out, seed=args.seed,
-                          effects=[e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None,
-                          workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
-                          max_steps=args.max_steps, figures=not args.no_figures, mode=args.mode)
-        elif args.command in ("identify", "report"):
-            from bayesdamper.run.identify import run_identify
-            from bayesdamper.run.report import run_report
+                run_simulate(args.out_dir, velocities_mm_s=args.velocities, alpha_v=args.alpha_v, p_r=args.p_r,
+                             noise_n=args.noise_n, noise_phi=args.noise_phi, seed=args.seed,
+                             sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
+                             effects=parse_effect_specs(args.effect))
+            elif args.command == "diagnose":
+                from bayesdamper.run.diagnose import run_diagnosis
 
-            run = run_identify if args.command == "identify" else run_report
-            run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
-                tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
-                propagate=not args.conditional, coupling=args.coupling,
-                alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
-                max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
-                force=args.force, scheduler=args.scheduler, mode=args.mode)
+                effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
+                run_diagnosis(args.data_dir, args.out, seed=args.seed, effects=effects,
+                              workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
+                              max_steps=args.max_steps, figures=not args.no_figures, mode=args.mode)
+            elif args.command in ("identify", "report"):
+                from bayesdamper.run.identify import run_identify
+                from bayesdamper.run.report import run_report
+
+                run = run_identify if args.command == "identify" else run_report
+                run(args.data_dir, args.out, seed=args.seed, credible_mass=args.credible_mass,
+                    tmax=args.tmax, workers=args.workers, noise_model=args.noise_model,
+                    propagate=not args.conditional, coupling=args.coupling,
+                    alpha_v_prior=args.alpha_v_prior, p_r_prior=args.p_r_prior,
+                    max_steps=args.max_steps, only=args.only, figures=not args.no_figures,
+                    force=args.force, scheduler=args.scheduler, mode=args.mode)
     except BayesDamperError as err:
         print(f"bayesdamper: error: {err}", file=sys.stderr)
         return 2

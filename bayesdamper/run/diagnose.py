@@ -146,7 +146,16 @@ def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
                                                                      n_walkers=FINAL_WALKERS))
 
 
-def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
+def run_diagnosis(data_dir: str, out: str, **kwargs) -> dict:
+    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model
+    (:func:`_run_diagnosis`; with one BLAS thread per process: :mod:`bayesdamper.run.threads`)."""
+    from bayesdamper.run.threads import one_blas_thread
+
+    with one_blas_thread():
+        return _run_diagnosis(data_dir, out, **kwargs)
+
+
+def _run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
                   workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
                   max_steps: int | None = None, figures: bool = True, quiet: bool = False,
                   tests: list[str] | None = None, mode: str = "auto") -> dict:
