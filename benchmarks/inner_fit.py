@@ -1,5 +1,7 @@
 """Benchmark of the profile search's per-transient re-fit: scipy ``least_squares`` (trf, forward differences, the
-search's tolerances) against :func:`bayesdamper.diagnosis.inner_fit.refit` (Jacobian carried from the last re-fit).
+search's tolerances) against the search's worker (:func:`bayesdamper.diagnosis.engine._inner_fit`:
+:func:`bayesdamper.diagnosis.inner_fit.refit` with the Jacobian carried from the last re-fit, scipy when it does not
+converge).
 
 Replays what a search does on a data set with the effects a diagnosis selected: the effect parameters are moved
 step by step (each shared parameter in turn by ±``--step`` of its value, as a local search would), and every
@@ -21,10 +23,20 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from bayesdamper.diagnosis.engine import _BOX, LS_FTOL, LS_XTOL
-from bayesdamper.diagnosis.inner_fit import refit
+from bayesdamper.diagnosis.engine import _BOX, _PROBLEMS, LS_FTOL, LS_XTOL, _inner_fit
 from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
 from bayesdamper.run.plan import plan_dataset
+
+
+class _Counted:
+    """A problem whose solves are counted (the worker's view of it: ``force`` and ``simulate_force``)."""
+
+    def __init__(self, prob, count):
+        self.prob, self.count, self.force = prob, count, prob.force
+
+    def simulate_force(self, *args):
+        self.count[0] += 1
+        return self.prob.simulate_force(*args)
 
 
 def _or_big(r, force):
@@ -88,14 +100,15 @@ def main(argv=None) -> int:
             stats["trf"][1] += t1 - t0
             stats["trf"][2].append(s_old)
             count[0] = 0
+            _PROBLEMS[:] = [_Counted(prob, count)]
             t0 = time.perf_counter()
-            fit = refit(solve, x0, _BOX[0], _BOX[1], jac)
+            _, sse, _, jac_out = _inner_fit((0, eff, None, x0, jac))  # the search's worker: refit, scipy if needed
             t1 = time.perf_counter()
-            jac = fit.jac if fit.jac is not None else jac
+            jac = jac_out if jac_out is not None else jac
             stats["carried"][0] += count[0]
             stats["carried"][1] += t1 - t0
-            stats["carried"][2].append(fit.sse)
-            worst_k = max(worst_k, (fit.sse - s_old) / s_old)
+            stats["carried"][2].append(sse)
+            worst_k = max(worst_k, (sse - s_old) / s_old)
         print(f"  {tr.id:18s} done", flush=True)
     n = len(stats["trf"][2])
     for name, (solves, wall, _) in stats.items():
