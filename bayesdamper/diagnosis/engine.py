@@ -38,10 +38,11 @@ def _inner_fit(args):
     """Least-squares (α_V, p_R) of one transient for a given effect set (worker task).
 
     Levenberg-Marquardt with the Jacobian carried from the transient's last re-fit
-    (:func:`bayesdamper.diagnosis.inner_fit.refit`: 4-6 solves where scipy's ``least_squares`` with forward
-    differences needed 15-24) from the warm start; if it does not converge, ``least_squares`` (``trf``) and then
-    Nelder-Mead finish from its best point. Effect values whose solve fails at the warm start itself (a
-    chattering valve past the step cap, say) are infeasible at once. Returns (x̂, SSE, residual, Jacobian).
+    (:func:`bayesdamper.diagnosis.inner_fit.refit`: 8.7 solves on average where scipy's ``least_squares`` with
+    forward differences needed 13.1, ``benchmarks/inner_fit.py`` on rig-A) from the warm start; if it does not
+    converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point. Effect values whose solve
+    fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. Returns (x̂,
+    SSE, residual, Jacobian).
     """
     k, eff, flow, warm, jac = args
     prob = _PROBLEMS[k]

@@ -1,16 +1,19 @@
 """The per-transient re-fit inside the profile search: Gauss-Newton on (log α_V, log p_R) with a carried Jacobian.
 
-Every evaluation of a candidate's profile objective S(ψ) re-fits each transient's two parameters by least
-squares on eq. (9) (:mod:`bayesdamper.diagnosis.candidates`). scipy's trust-region ``least_squares`` estimates
-the 2-column Jacobian afresh by forward differences at every iterate: 3 solves an iteration, 15-24 a re-fit on
-rig-A. Here a Levenberg-Marquardt iteration carries the Jacobian instead: it starts from the one the last re-fit
-of the same transient ended with (the search moves ψ a little at a time), corrects it along every step taken
-(Broyden's rank-one update), and re-computes it by forward differences only when it is stale (a step failed, or
-the iterate moved more than :data:`JAC_REUSE` since the last difference) or to confirm convergence. Convergence
-is declared only with a Jacobian no older than :data:`JAC_REUSE`: the Gauss-Newton step it predicts is below
-:data:`XTOL` (in log units, 0.01 % of the parameter) or the decrease it predicts below :data:`FTOL` of the sum
-of squares (``least_squares``' own ``ftol``; its ``xtol`` 1e-4 is relative to ‖x‖ ≈ 14), or a step of an exact
-Jacobian predicted to gain less than 10 :data:`FTOL` fails (the noise floor of differences and solver).
+Every evaluation of a candidate's profile objective S(ψ) re-fits each transient's two parameters by least squares on
+eq. (9) (:mod:`bayesdamper.diagnosis.candidates`). scipy's trust-region ``least_squares`` estimates the 2-column
+Jacobian afresh by forward differences at every iterate: 3 solves an iteration, 13 a re-fit on rig-A
+(``benchmarks/inner_fit.py``; 8.7 with the Jacobian carried). Here a Levenberg-Marquardt iteration carries the
+Jacobian instead: it starts from the one the last re-fit of the same transient ended with (the search moves ψ a
+little at a time), corrects it along every step taken (Broyden's rank-one update), and re-computes it by forward
+differences only when it is stale (a step failed, or the iterate moved more than :data:`JAC_REUSE` since the last
+difference) or to confirm convergence. Convergence is declared when a Jacobian differenced at the iterate predicts a
+Gauss-Newton step below :data:`XTOL` (log units) or a decrease below :data:`FTOL` of the sum of squares; when a step
+from a Jacobian at most :data:`JAC_REUSE` old gains less than :data:`FTOL`; when a step from a Jacobian differenced
+at its start gains what that Jacobian predicted to within :data:`FTOL`; or when such a step, predicted to gain less
+than 10 :data:`FTOL`, fails (the noise floor of the differences and the solver). On rig-A (6 transients x 21 points
+of a search) the sums of squares came within 5.3e-6 of scipy's at tolerance 1e-14, scipy's trust region at the
+search's former tolerances within 6.4e-6.
 
 The parameters live in a box; a parameter at a bound whose gradient points out of the box is held there (the
 reduced problem is solved for the others), so optima on the bounds are reached as in the projected methods.
@@ -24,9 +27,9 @@ import numpy as np
 
 #: Gauss-Newton step [log units] below which the fit has converged (with a fresh Jacobian).
 XTOL = 1e-4
-#: Predicted relative decrease of the sum of squares below which the fit has converged (with a fresh Jacobian):
-#: the search's ``least_squares`` ``ftol``. Near the optimum forward differences (error ~ h × curvature) and the
-#: solver's own tolerance make steps predicted to gain less fail about as often as they succeed.
+#: Relative decrease of the sum of squares below which the fit has converged (see the module docstring). Near the
+#: optimum forward differences (error ~ h × curvature) and the solver's own tolerance make steps predicted to gain
+#: less fail about as often as they succeed; 1e-7 cost a solve more per re-fit on rig-A for the same accuracy.
 FTOL = 1e-6
 #: Forward-difference step relative to max(1, |x|) (scipy's ``diff_step`` convention; the search used 1e-4).
 DIFF_STEP = 1e-4
