@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import inspect
 import multiprocessing as mp
 
 import numpy as np  # noqa: F401  (loads numpy's OpenBLAS, whose pool is limited)
@@ -27,16 +28,19 @@ def test_one_blas_thread_in_the_process_and_in_its_forked_workers():
 def test_the_cli_and_the_diagnosis_run_with_one_blas_thread(monkeypatch, tmp_path):
     """Both entry points enter the limit: a command that fails inside it still saw one thread."""
     from bayesdamper import cli
+    from bayesdamper.core.errors import SettingsError
     from bayesdamper.run import diagnose
 
     seen = []
 
-    def fake(*args, **kwargs):
+    def fake_plan(*args, **kwargs):
         seen.append(set(_blas_threads()))
-        return {}
+        raise SettingsError("stop here")
 
-    monkeypatch.setattr(diagnose, "_run_diagnosis", fake)
-    diagnose.run_diagnosis(str(tmp_path), str(tmp_path / "out"))
+    monkeypatch.setattr("bayesdamper.run.plan.plan_dataset", fake_plan)
+    with pytest.raises(SettingsError):
+        diagnose.run_diagnosis(str(tmp_path), str(tmp_path / "out"))
     monkeypatch.setattr("bayesdamper.run.check.run_check", lambda *a, **k: seen.append(set(_blas_threads())))
     assert cli.main(["check", str(tmp_path)]) == 0
     assert seen == [{1}, {1}]
+    assert "seed" in inspect.signature(diagnose.run_diagnosis).parameters  # the decorator keeps the signature

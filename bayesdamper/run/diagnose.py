@@ -55,6 +55,7 @@ from bayesdamper.run.outfolder import (
 )
 from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import drift_summary, identify_all
+from bayesdamper.run.threads import one_blas_thread
 
 #: The generic effect: a candidate only with the structure the residual's signature found.
 GENERIC = "unnamed_dynamics"
@@ -146,20 +147,13 @@ def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
                                                                      n_walkers=FINAL_WALKERS))
 
 
-def run_diagnosis(data_dir: str, out: str, **kwargs) -> dict:
-    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model
-    (:func:`_run_diagnosis`; with one BLAS thread per process: :mod:`bayesdamper.run.threads`)."""
-    from bayesdamper.run.threads import one_blas_thread
-
-    with one_blas_thread():
-        return _run_diagnosis(data_dir, out, **kwargs)
-
-
-def _run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
+@one_blas_thread()
+def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
                   workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
                   max_steps: int | None = None, figures: bool = True, quiet: bool = False,
                   tests: list[str] | None = None, mode: str = "auto") -> dict:
-    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model.
+    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model (with one BLAS
+    thread per process: :mod:`bayesdamper.run.threads`).
 
     ``tests`` restricts the run to the named records (file stems) of the data set. ``mode`` as for
     ``identify``: a data set that is not all triangular tests is diagnosed record by record as a whole

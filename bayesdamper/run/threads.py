@@ -15,7 +15,8 @@ from contextlib import contextmanager
 
 @contextmanager
 def one_blas_thread():
-    """Limit the BLAS thread pools of this process (and of the workers it forks) to one thread."""
+    """Limit the BLAS thread pools of this process (and of the workers it forks) to one thread; a context manager,
+    or a decorator (``@one_blas_thread()``)."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1, user_api="blas"):
