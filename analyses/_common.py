@@ -13,7 +13,7 @@ from pathlib import Path
 
 import bayesdamper as bd
 from bayesdamper.inference.sampling import SamplerSettings
-from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
+from bayesdamper.inference.stage2 import StageTwoSettings, WindowResult
 from bayesdamper.io.segments import Transient
 
 #: Repository root (this file lives in ``<root>/analyses``).
@@ -74,7 +74,7 @@ def select(transients: list[Transient], only: str | None) -> list[Transient]:
 
 def identify_results(data_dir: Path, *, seed: int, max_steps: int | None, only: str | None,
                      workers: int = 0, credible_mass: float = 0.9):
-    """Stage 1 and stage 2 keeping the full :class:`TransientResult` objects (bands, chains).
+    """Stage 1 and stage 2 keeping the full :class:`WindowResult` objects (bands, chains).
 
     Returns
     -------
@@ -88,7 +88,7 @@ def identify_results(data_dir: Path, *, seed: int, max_steps: int | None, only: 
     settings = StageTwoSettings(credible_mass=credible_mass, sampler=sampler)
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     t0 = time.perf_counter()
-    results: list[TransientResult] = bd.identify_all(
+    results: list[WindowResult] = bd.identify_all(
         transients, ds.damper, static.coefficients, settings, seed, workers, None, {},
         bd.Progress(False))
     entries = [r.entry for r in results]

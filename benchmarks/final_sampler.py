@@ -20,7 +20,8 @@ import time
 
 from bayesdamper.diagnosis.loop import FixedEffectsProblem
 from bayesdamper.inference.problem import LIKELIHOOD_RTOL
-from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
+from bayesdamper.inference.identify import identify_window
+from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
 from bayesdamper.run.diagnose import FINAL_MOVE, final_settings
 from bayesdamper.run.plan import plan_dataset
@@ -52,7 +53,7 @@ def main(argv=None) -> int:
         fp = FixedEffectsProblem(prob, eff)
         for move, st in moves:
             t0 = time.perf_counter()
-            e = identify_transient(tr, plan.ds.damper, plan.static.coefficients, st, a.seed, problem=fp).entry
+            e = identify_window(tr, plan.ds.damper, plan.static.coefficients, st, a.seed, problem=fp).entry
             wall = time.perf_counter() - t0
             av, pr = e["alpha_V"], e["p_R_Pa"]
             print(f"{tr.id:18s} {move:9s} {max(e['tau'].values()):7.1f} {e['n_evaluations']:7d} {wall:5.1f}s "

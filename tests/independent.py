@@ -15,7 +15,8 @@ Model, SI units throughout; state Δp = p_1 - p_2 [Pa]:
 
 Inputs are small objects with analytic ``displacement(t)`` [m], ``velocity(t)`` [m/s] and
 ``breakpoints(t0, t1)`` (times in (t0, t1) where dy/dt is not smooth); :func:`simulate` restarts the
-Radau integration at every breakpoint.
+Radau integration at every breakpoint. Sweeps, random inputs, stops and starts from rest are in
+``independent_records``.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ __all__ = [
     "multisine_input",
     "orifice_flow",
     "quasi_static_dp",
+    "segment_functions",
     "simulate",
     "simulate_two_state",
     "sine_input",
@@ -312,6 +314,22 @@ def triangle_input(speed: float, amplitude: float, rest: float, t_first_step: fl
 
 
 # ----------------------------------------------------------------------------- simulation
+def segment_functions(inp, ta: float, tb: float):
+    """Scalar y(t) [m] and v(t) [m/s] valid on the closed segment [ta, tb] between two breakpoints.
+
+    A velocity step at a segment's end must not leak into the segment (Radau evaluates its last stage at the
+    end point; its step control keeps such a leak near 1e-8 N, and this keeps it out): a :class:`TriangleInput`
+    is linear on the segment, an input with an ``on_segment(ta, tb)`` method (the wrappers of
+    ``independent_records``) gives its own one-sided form, and any other input is smooth and is read directly.
+    """
+    if isinstance(inp, TriangleInput):  # linear on the segment: do not read v at the kinks
+        ya, va = float(inp.displacement(ta)), float(inp.velocity(0.5 * (ta + tb)))
+        return (lambda t: ya + va * (t - ta)), (lambda t: va)
+    if hasattr(inp, "on_segment"):
+        return inp.on_segment(ta, tb)
+    return (lambda t: float(inp.displacement(t))), (lambda t: float(inp.velocity(t)))
+
+
 def simulate(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: float, *, dp0: float | None = None,
              t0: float | None = None, rtol: float = 1e-11, atol: float = 1e-6, f0: float = 0.0,
              coulomb: float = 0.0, v_eps: float = 1e-3, return_dp: bool = False) -> np.ndarray:
@@ -374,13 +392,6 @@ def simulate(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: float, *, 
     if dp0 is None:
         dp0 = float(quasi_static_dp(area * float(inp.velocity(t0)), flow))
 
-    def segment(ta: float, tb: float):
-        """y(t), v(t) valid on the closed segment [ta, tb] (no breakpoint inside)."""
-        if isinstance(inp, TriangleInput):  # linear on the segment: do not read v at the kinks
-            ya, va = float(inp.displacement(ta)), float(inp.velocity(0.5 * (ta + tb)))
-            return (lambda t: ya + va * (t - ta)), (lambda t: va)
-        return (lambda t: float(inp.displacement(t))), (lambda t: float(inp.velocity(t)))
-
     def make_rhs(y_of, v_of):
         def parts(t, dp):
             y, v = y_of(t), v_of(t)
@@ -413,7 +424,7 @@ def simulate(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: float, *, 
     out[t_samples <= t0] = dp0
     x = float(dp0)
     for ta, tb in zip(edges[:-1], edges[1:], strict=True):
-        rhs, jac = make_rhs(*segment(ta, tb))
+        rhs, jac = make_rhs(*segment_functions(inp, ta, tb))
         sol = solve_ivp(rhs, (ta, tb), [x], method="Radau", jac=jac, rtol=rtol, atol=atol, dense_output=True)
         if sol.status != 0:
             raise RuntimeError(f"Radau solve of eq. (7) failed on [{ta!r}, {tb!r}] s "

@@ -51,7 +51,7 @@ def _problem(model: str = "eq7", alpha=60.0, p_r=1.5e5, sd=10.0, phi=0.0, seed=3
     cov[2:, 2:] = np.outer(rel[2:] * m[2:], rel[2:] * m[2:]) * corr
     noise = joint.PlateauNoise(phi, sd * math.sqrt(1 - phi * phi), 10_000, 10)
     prior = joint.StageOnePrior(m, cov, np.array([np.inf, np.inf]), noise)
-    jp = joint.JointProblem.from_transient(tr, DAMPER, prior)
+    jp = joint.JointProblem.from_window(tr, DAMPER, prior)
     lp = joint.JointLogPosterior(jp, jp.space())
     return lp, np.r_[jp.dp0_estimate, m], np.log([alpha, p_r])
 

@@ -12,16 +12,16 @@ import numpy as np
 import pytest
 from independent import PAPER_FLOW as REF_FLOW
 from independent import RIG_A, quasi_static_dp, triangle_input
-from reference_effects import simulate_effects
+from reference_effects import simulate_effects as reference_simulate
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
+from bayesdamper.inference.problem import EffectsProblem
 from bayesdamper.physics.compose import L_ACTIVE, ComposedEffects, compose, kernel_source, layout, solve_composed
-from bayesdamper.physics.effect_vector import pack_effects
 from bayesdamper.physics.effects import EFFECT_MODULES, EFFECT_NAMES, EFFECTS
-from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.excitation import PiecewiseLinear, PiecewisePolynomial
 from bayesdamper.physics.rodas import STATUS_OK
-from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument, simulate_augmented
+from bayesdamper.physics.with_effects import effect_argument, simulate_effects
 
 D = DamperConstants(RIG_A["area"], RIG_A["v01"], RIG_A["v02"], RIG_A["b0"])
 FLOW = FlowCoefficients(*REF_FLOW)
@@ -72,13 +72,13 @@ def _times(t0):
 
 def _ours(effects, t0, v_prev, dp0):
     kt, ky = INP.knots(t0 + 3.0)
-    return simulate_augmented(_times(t0), PiecewiseLinear(kt, ky), D, FLOW, DYN, effects, dp0=dp0, t0=t0,
-                              rtol=1e-9, atol=1e-4)
+    return simulate_effects(_times(t0), PiecewiseLinear(kt, ky), D, FLOW, DYN, effects, dp0=dp0, t0=t0,
+                            rtol=1e-9, atol=1e-4)
 
 
 def _reference(effects, t0, v_prev, dp0):
-    return simulate_effects(INP, _times(t0), RIG_A, REF_FLOW, ALPHA_V, P_R, effects, dp0=dp0, t0=t0,
-                            v_prev=v_prev, rtol=1e-10, atol=1e-6)
+    return reference_simulate(INP, _times(t0), RIG_A, REF_FLOW, ALPHA_V, P_R, effects, dp0=dp0, t0=t0,
+                              v_prev=v_prev, rtol=1e-10, atol=1e-6)
 
 
 @pytest.mark.parametrize("start", list(STARTS))
@@ -106,8 +106,9 @@ def test_initial_dp_from_the_step_force_includes_every_effect_force():
     f_step = D.piston_area * dp0 + 300.0 - 120.0 + 1e5 * y0  # friction at v_prev = +1.2 mm/s (tanh saturated)
     c = compose(eff)
     t = _times(t0)
-    f_a, s_a = solve_composed(c, t, kt, ky, t0, dp0, SPEED, D, FLOW.as_array(), ALPHA_V, P_R, 1e-8, 1e-3)
-    f_b, s_b = solve_composed(c, t, kt, ky, t0, f_step, SPEED, D, FLOW.as_array(), ALPHA_V, P_R, 1e-8, 1e-3,
+    drive = c.transform_input(PiecewisePolynomial.from_knots(kt, ky))
+    f_a, s_a = solve_composed(c, t, drive, t0, dp0, SPEED, D, FLOW.as_array(), ALPHA_V, P_R, 1e-8, 1e-3)
+    f_b, s_b = solve_composed(c, t, drive, t0, f_step, SPEED, D, FLOW.as_array(), ALPHA_V, P_R, 1e-8, 1e-3,
                               from_force=True)
     assert s_a == s_b == STATUS_OK
     assert np.max(np.abs(f_a - f_b)) < 1e-6 * np.max(np.abs(f_a))
@@ -117,26 +118,35 @@ def test_non_physical_solve_is_a_failed_status_never_nan_to_the_sampler():
     kt, ky = INP.knots(8.0)
     t0 = STARTS["rest"][0]
     time = _times(t0)[:200]
-    # a displacement 400 times larger empties chamber 1 (V_01 / A_P = 36 mm) within the window
-    prob = AugmentedProblem("t", time, np.zeros(time.size), t0, 0.0, kt, ky * 400.0, D, FLOW)
+    # a displacement 400 times larger empties chamber 1 (V_01 / A_P = 36 mm) within the window; the window starts
+    # settled at rest (step force 0)
+    drive = PiecewisePolynomial.from_knots(kt, ky * 400.0)
+    prob = EffectsProblem("t", time, np.zeros(time.size), t0, 0.0, 0.0, drive, D, FLOW)
     force, ok = prob.simulate_force(ALPHA_V, P_R, effect_argument({"gas_spring": {}}))
     assert not ok and force.shape == time.shape
+    force, ok = prob.simulate_force(ALPHA_V, P_R, effect_argument({"gas_spring": {}}))  # the cached input
+    assert not ok
     # inf * 0 inside a hook (an infinite poppet frequency) is a failed status, not an exception or NaN
     bad = ComposedEffects(("poppet_valve",), np.array([math.inf, 0.2, 1e5, 1e6]))
-    _, status = solve_composed(bad, time, kt, ky, t0, 0.0, 0.0, D, FLOW.as_array(), ALPHA_V, P_R, 1e-8, 1e-3)
+    _, status = solve_composed(bad, time, PiecewisePolynomial.from_knots(kt, ky), t0, 0.0, 0.0, D, FLOW.as_array(),
+                               ALPHA_V, P_R, 1e-8, 1e-3)
     assert status != STATUS_OK
 
 
-def test_effect_argument_dispatch_and_round_trip():
-    assert isinstance(effect_argument({"friction": {}}), np.ndarray)
-    arg = effect_argument({"friction": {"coulomb_N": 50.0}, "poppet_valve": {}})
-    assert isinstance(arg, ComposedEffects)
-    assert arg.names == ("friction", "poppet_valve")
+def test_effect_argument_and_round_trip():
+    """Every effect set, the first effects' included, is a ComposedEffects; as_dict gives the completed set back."""
+    for effects in (None, {"friction": {}}, {"poppet_valve": {}, "friction": {"coulomb_N": 50.0}}):
+        assert isinstance(effect_argument(effects), ComposedEffects)
+    arg = effect_argument({"poppet_valve": {}, "friction": {"coulomb_N": 50.0}})
+    assert arg.names == ("friction", "poppet_valve")  # registry order
     back = arg.as_dict()
     assert back["friction"]["coulomb_N"] == 50.0
     assert back["poppet_valve"] == EFFECTS["poppet_valve"].defaults()
-    with pytest.raises(SettingsError, match="no slots in the fixed effect vector"):
-        pack_effects({"poppet_valve": {}})
+    assert effect_argument(back).as_dict() == back and np.array_equal(effect_argument(back).values, arg.values)
+    assert effect_argument(None).names == () and effect_argument(None).values.size == 0
+    with pytest.raises(SettingsError, match="unknown effect"):
+        effect_argument({"gravity": {}})
+
 
 
 def test_the_library_holds_what_the_issue_names():

@@ -1,8 +1,8 @@
 """The effect library: registry, parameter specs, the command-line form, and each effect's physics.
 
 Physics is checked on rig A's protocol (rest, then a 5 mm triangle) through
-:func:`bayesdamper.physics.with_effects.simulate_augmented` against analytic limits: off values reproduce
-eq. (7); friction and inertia add exactly known forces; backlash, lag, valve and compliance show
+:func:`bayesdamper.physics.with_effects.simulate_effects` (the composed kernel) against analytic limits: off values
+reproduce eq. (7); friction and inertia add exactly known forces; backlash, lag, valve and compliance show
 their defining signatures.
 """
 
@@ -13,8 +13,10 @@ import pytest
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
-from bayesdamper.physics.effect_vector import EFFECT_SLOTS, VECTOR_EFFECTS, pack_effects, unpack_effects
+from bayesdamper.physics.compose import compose
 from bayesdamper.physics.effects import (
+    _FIRST,
+    EFFECT_MODULES,
     EFFECT_NAMES,
     EFFECTS,
     complete_effects,
@@ -26,7 +28,7 @@ from bayesdamper.physics.effects.backlash import backlash_knots
 from bayesdamper.physics.effects.inertia import CORNER_TIME_S
 from bayesdamper.physics.excitation import PiecewiseLinear
 from bayesdamper.physics.single_state import simulate_single_state
-from bayesdamper.physics.with_effects import simulate_augmented
+from bayesdamper.physics.with_effects import simulate_effects
 
 D = RIG_A_DAMPER
 AREA = D.piston_area
@@ -39,7 +41,7 @@ SAME_N = 0.05  # [N]
 
 
 def force(effects, t=T, exc=EXC, **kw):
-    return simulate_augmented(t, exc, D, PAPER_FLOW, DYN, effects, t0=kw.pop("t0", 0.0), **kw)
+    return simulate_effects(t, exc, D, PAPER_FLOW, DYN, effects, t0=kw.pop("t0", 0.0), **kw)
 
 
 @pytest.fixture(scope="module")
@@ -52,30 +54,35 @@ def plateau(t, t_a, t_b):
 
 
 # ----------------------------------------------------------------------------- registry and specs
-def test_registry_names_and_slots():
-    assert EFFECT_NAMES[:6] == VECTOR_EFFECTS == ("friction", "backlash", "actuator_lag", "valve_dynamics",
-                                                  "series_compliance", "inertia")
-    slots = [p.slot for n in VECTOR_EFFECTS for p in EFFECTS[n].params]
-    assert sorted(slots) == sorted(EFFECT_SLOTS)
-    assert not any(p.slot for n in EFFECT_NAMES[6:] for p in EFFECTS[n].params)  # composed kernel only
+def test_registry_names_and_parameters():
+    assert list(EFFECTS)[:6] == list(_FIRST) == ["friction", "backlash", "actuator_lag", "valve_dynamics",
+                                                  "series_compliance", "inertia"]
+    assert list(EFFECTS) == list(EFFECT_NAMES) == list(EFFECT_MODULES)
+    assert list(EFFECTS)[6:] == sorted(set(EFFECTS) - set(_FIRST))  # the others by name
     for e in EFFECTS.values():
         assert e.description and e.required
         for p in e.params:
             assert p.description and p.lower < p.upper
             assert (p.lower > 0) if p.log else True
             assert p.lower <= p.default <= p.upper or (p.optional and p.default == p.off)
+            assert p.off == math.inf if p.reciprocal else True  # a stiffness: off is infinitely stiff
 
 
-def test_pack_unpack_roundtrip():
-    eff = {"friction": {"coulomb_N": 150.0}, "series_compliance": {"stiffness_N_per_m": 2e7},
-           "valve_dynamics": {"time_constant_s": 0.05, "opening_pressure_Pa": 2e5}}
-    vec = pack_effects(eff)
-    assert vec[EFFECT_SLOTS.index("compliance")] == pytest.approx(5e-8)
-    assert vec[EFFECT_SLOTS.index("coulomb")] == 150.0
-    back = unpack_effects(vec)
-    assert back == complete_effects(eff)
-    assert not np.any(pack_effects({name: EFFECTS[name].off_values() for name in VECTOR_EFFECTS}))
-    assert set(unpack_effects(np.zeros(len(EFFECT_SLOTS)), keep_off=True)) == set(VECTOR_EFFECTS)
+def test_complete_and_compose_round_trip():
+    eff = {"valve_dynamics": {"time_constant_s": 0.05, "opening_pressure_Pa": 2e5},
+           "friction": {"coulomb_N": 150.0}, "series_compliance": {"stiffness_N_per_m": 2e7}}
+    full = complete_effects(eff)
+    assert list(full) == ["friction", "valve_dynamics", "series_compliance"]  # registry order
+    assert full["friction"] == EFFECTS["friction"].defaults() | {"coulomb_N": 150.0}
+    c = compose(eff)
+    assert c.names == tuple(full)
+    assert c.as_dict() == full
+    assert c.values.tolist() == [v for name in full for v in full[name].values()]
+    assert c.compliance() == pytest.approx(5e-8)  # 1 / k_s
+    assert compose(c.as_dict()).as_dict() == full
+    off = compose({name: EFFECTS[name].off_values() for name in _FIRST})
+    assert off.as_dict() == {name: EFFECTS[name].off_values() for name in _FIRST} and off.compliance() == 0.0
+    assert compose(None).names == () and compose({}).as_dict() == {} and complete_effects(None) == {}
 
 
 @pytest.mark.parametrize("text,name,values", [
@@ -134,7 +141,7 @@ def test_off_values_reproduce_eq7(name, base):
     f = force({name: EFFECTS[name].off_values()})
     ref = AREA * simulate_single_state(T, EXC, D, PAPER_FLOW, DYN, dp0=0.0, t0=0.0)
     assert np.max(np.abs(f - ref)) < SAME_N
-    if name in VECTOR_EFFECTS:  # same kernel: bit-identical (the others run on the composed kernel)
+    if not getattr(EFFECT_MODULES[name], "STATES", ()):  # no extra state: the same steps, bit-identical
         assert np.array_equal(f, base)
 
 
@@ -150,9 +157,17 @@ def test_friction_shifts_force_by_coulomb_with_velocity_sign(base):
     assert np.allclose(diff[~moving & away], 0.0, atol=1e-9)
 
 
-def test_inertia_adds_mass_times_corner_filtered_acceleration(base):
+#: Tolerances [-], [Pa] of the inertia check, and its force tolerance: the filter is an ODE state of the kernel, and
+#: the solve with it takes other steps than the one without, so the difference carries both solves' global error
+#: of Δp (measured 3e-6 N at rtol 1e-9 on forces of 4 kN; it scales with rtol): 1e-4 N is 3e-6 of the 32 N peak.
+INERTIA_SOLVER_TOL = (1e-9, 1e-4)
+INERTIA_N = 1e-4  # [N]
+
+
+def test_inertia_adds_mass_times_corner_filtered_acceleration():
     m = 800.0
-    diff = force({"inertia": {"mass_kg": m}}) - base
+    rtol, atol = INERTIA_SOLVER_TOL
+    diff = force({"inertia": {"mass_kg": m}}, rtol=rtol, atol=atol) - force(None, rtol=rtol, atol=atol)
     vel = np.concatenate(([0.0], np.diff(EXC.knot_displacements) / np.diff(EXC.knot_times), [0.0]))
     acc = np.zeros_like(T)
     for k, tk in enumerate(EXC.knot_times):
@@ -160,10 +175,10 @@ def test_inertia_adds_mass_times_corner_filtered_acceleration(base):
         after = T > tk
         acc[after] += dv / CORNER_TIME_S * np.exp(-(T[after] - tk) / CORNER_TIME_S)
     away = np.min(np.abs(T[:, None] - EXC.knot_times[None, :]), axis=1) > 1e-6
-    assert np.allclose(diff[away], m * acc[away], rtol=1e-9, atol=1e-9)
+    assert np.max(np.abs(diff[away] - m * acc[away])) < INERTIA_N
     assert np.max(np.abs(diff)) == pytest.approx(m * 2 * SPEED / CORNER_TIME_S, rel=0.1)  # the reversals
     steady = np.min(np.abs(T[:, None] - EXC.knot_times[None, :]), axis=1) > 20 * CORNER_TIME_S
-    assert np.max(np.abs(diff[steady])) < 1e-6
+    assert np.max(np.abs(diff[steady])) < INERTIA_N  # exp(-20) of the peak: nothing on steady ramps
 
 
 def test_backlash_from_rest_force_flat_then_follows(base):

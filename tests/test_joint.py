@@ -14,7 +14,8 @@ from independent import PAPER_FLOW, RIG_A, ar1_noise, force_noise, simulate, tri
 
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.inference import joint
-from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
+from bayesdamper.inference.identify import identify_window
+from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record
 
@@ -87,7 +88,7 @@ def test_dp0_sd_is_the_ar1_mean_sd():
     pn = joint.PlateauNoise(phi, sd * math.sqrt(1 - phi**2), 1000, 5)
     seg = _record()
     tr = seg.transients[0]
-    jp = joint.JointProblem.from_transient(tr, DAMPER, _prior(pn))
+    jp = joint.JointProblem.from_window(tr, DAMPER, _prior(pn))
     jp = joint.JointProblem(tr.id, tr.time, tr.force, tr.pre_time[:n], tr.pre_force[:n], tr.t_step, tr.knot_times,
                             tr.knot_displacements, DAMPER, _prior(pn))
     assert jp.dp0_sd() * DAMPER.piston_area == pytest.approx(np.std(means), rel=0.05)  # MC sd error 1.1 %
@@ -108,7 +109,7 @@ def test_transients_carry_the_samples_before_the_step(segmented):
 def test_compiled_equals_reference(segmented, code):
     pn = joint.PlateauNoise(0.3, 9.0, 1000, 4)
     for tr in segmented.transients:
-        jp = joint.JointProblem.from_transient(tr, DAMPER, _prior(pn), code)
+        jp = joint.JointProblem.from_window(tr, DAMPER, _prior(pn), code)
         sp = jp.space()
         lp = joint.JointLogPosterior(jp, sp)
         rng = np.random.default_rng(1)
@@ -124,7 +125,7 @@ def test_compiled_equals_reference(segmented, code):
 
 def test_minus_inf_outside_box_and_never_nan(segmented):
     pn = joint.PlateauNoise(0.0, 10.0, 1000, 4)
-    jp = joint.JointProblem.from_transient(segmented.transients[0], DAMPER, _prior(pn))
+    jp = joint.JointProblem.from_window(segmented.transients[0], DAMPER, _prior(pn))
     lp = joint.JointLogPosterior(jp, jp.space())
     good = np.r_[math.log(40.0), math.log(2.5e5), jp.dp0_estimate, PAPER_FLOW]
     bad = [good + np.r_[100, 0, 0, 0, 0, 0, 0], np.full(7, np.nan), good * np.r_[1, 1, 1, -1, 1, 1, 1],
@@ -144,7 +145,7 @@ def test_map_recovers_every_parameter_on_noise_free_data():
     prior = _prior(pn, rel_sd=0.01)
     prior = joint.StageOnePrior(prior.mean * np.array([1.01, 0.99, 1.01, 0.99]), prior.cov, prior.dof, pn)
     tr = seg.transients[1]  # the reversal: both directions' coefficients act
-    jp = joint.JointProblem.from_transient(tr, DAMPER, prior)
+    jp = joint.JointProblem.from_window(tr, DAMPER, prior)
     lp = joint.JointLogPosterior(jp, jp.space())
     x, cov = joint.fit_map(lp, np.r_[math.log(45.0), math.log(2e5), jp.dp0_estimate, prior.mean])
     assert cov is not None
@@ -169,8 +170,8 @@ def test_propagated_interval_covers_a_start_from_rest_the_conditional_one_misses
     static_like = _prior(pn, rel_sd=0.003)
     tr = seg.transients[0]
     flow = FlowCoefficients(*PAPER_FLOW)
-    cond = identify_transient(tr, DAMPER, flow, StageTwoSettings(noise_model="ar1", propagate=False), 0).entry
-    jnt = identify_transient(tr, DAMPER, flow, StageTwoSettings(coupling=coupling), 0, prior=static_like).entry
+    cond = identify_window(tr, DAMPER, flow, StageTwoSettings(noise_model="ar1", propagate=False), 0).entry
+    jnt = identify_window(tr, DAMPER, flow, StageTwoSettings(coupling=coupling), 0, prior=static_like).entry
     assert jnt["converged"] and jnt["propagated"]
     assert jnt["alpha_V"]["lo"] <= 90.0 <= jnt["alpha_V"]["hi"]
     assert jnt["p_R_Pa"]["lo"] <= 3.0e4 <= jnt["p_R_Pa"]["hi"]

@@ -12,7 +12,7 @@ from matplotlib.container import ErrorbarContainer  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 from bayesdamper.inference.stage1 import StaticFit, fit_direction  # noqa: E402
-from bayesdamper.inference.stage2 import TransientResult  # noqa: E402
+from bayesdamper.inference.stage2 import WindowResult  # noqa: E402
 from bayesdamper.report import diagnostic_plots, paper_figures, style  # noqa: E402
 from bayesdamper.report.figures import write_identify_figures  # noqa: E402
 
@@ -58,7 +58,7 @@ def entries() -> list[dict]:
     return out
 
 
-def _result(entry: dict, seed: int = 0) -> TransientResult:
+def _result(entry: dict, seed: int = 0) -> WindowResult:
     rng = np.random.default_rng(seed)
     n_chains = N_ENSEMBLES * N_WALKERS
     med = np.array([entry["alpha_V"]["median"], entry["p_R_Pa"]["median"], 0.9])
@@ -66,11 +66,11 @@ def _result(entry: dict, seed: int = 0) -> TransientResult:
     t = entry["t_start_s"] + np.arange(0, 3.0, 0.004)
     f = entry["direction"] * 4000.0 * (1 - np.exp(-(t - t[0]) / 0.3))
     band = np.vstack([0.95 * f, f, 1.05 * f])
-    return TransientResult(entry, NAMES, chains, t, f + 20 * rng.standard_normal(t.size), band, 0.98 * f)
+    return WindowResult(entry, NAMES, chains, t, f + 20 * rng.standard_normal(t.size), band, 0.98 * f)
 
 
 @pytest.fixture
-def results(entries) -> list[TransientResult]:
+def results(entries) -> list[WindowResult]:
     return [_result(e, k) for k, e in enumerate(entries)]
 
 

@@ -16,7 +16,7 @@ from bayesdamper.core.errors import DataError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
 from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace
-from bayesdamper.inference.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, TransientProblem
+from bayesdamper.inference.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, WindowProblem
 from bayesdamper.io.dataset import COLUMNS, DAMPER_FILE, load_dataset
 from bayesdamper.physics.single_state import solve_single_state
 
@@ -169,14 +169,14 @@ def test_forward_model_output_is_finite_whenever_status_is_zero(alpha_v, p_r, ve
 # log-posterior
 
 
-def _problem() -> TransientProblem:
+def _problem() -> WindowProblem:
     d = RIG_A_DAMPER
     velocity = 1.0e-3
     knot_t, knot_y = np.array([0.0, 3.0]), np.array([0.0, 3.0 * velocity])
     dp, status, _ = _solve(1 / 0.03, 3e5, velocity, 0.0)
     assert status == 0
     force = d.piston_area * dp + 20.0 * np.random.default_rng(0).standard_normal(T_OUT.size)
-    return TransientProblem("fuzz_s0", T_OUT, force, 0.0, 0.0, knot_t, knot_y, d, PAPER_FLOW)
+    return WindowProblem("fuzz_s0", T_OUT, force, 0.0, 0.0, knot_t, knot_y, d, PAPER_FLOW)
 
 
 PROBLEM = _problem()

@@ -6,7 +6,8 @@ import pytest
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.inference.priors import ParameterSpace
 from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
-from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient, shape_report
+from bayesdamper.inference.identify import identify_window
+from bayesdamper.inference.stage2 import StageTwoSettings, shape_report
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record
 from bayesdamper.io.synthetic import simulate_record
@@ -70,7 +71,7 @@ def test_recovery_on_synthetic_eq7(velocity):
     """
     settings = StageTwoSettings(credible_mass=0.99)
     for tr in synthetic_transients(velocity, seed=11):
-        res = identify_transient(tr, RIG_A_DAMPER, PAPER_FLOW, settings, seed=5)
+        res = identify_window(tr, RIG_A_DAMPER, PAPER_FLOW, settings, seed=5)
         e = res.entry
         assert e["converged"], (tr.id, e["convergence"])
         assert e["alpha_V"]["lo"] <= TRUTH.liquid_gas_ratio <= e["alpha_V"]["hi"], (tr.id, e["alpha_V"])

@@ -127,7 +127,8 @@ def _sbc_replicate(k: int) -> list[tuple[int, int]]:
     both transients; returns the ranks of the true (α_V, p_R) among 99 posterior draws, per transient."""
     from bayesdamper.core.params import DamperConstants, FlowCoefficients
     from bayesdamper.inference import joint
-    from bayesdamper.inference.stage2 import StageTwoSettings, identify_transient
+    from bayesdamper.inference.identify import identify_window
+    from bayesdamper.inference.stage2 import StageTwoSettings
     from bayesdamper.io.dataset import TestRecord
     from bayesdamper.io.segmentation import segment_record
 
@@ -163,7 +164,7 @@ def _sbc_replicate(k: int) -> list[tuple[int, int]]:
     settings = StageTwoSettings(alpha_v_bounds=SBC_ALPHA, p_r_bounds=SBC_P_R)
     out = []
     for tr in seg.transients:
-        res = identify_transient(tr, damper, FlowCoefficients(*m), settings, k, prior=prior)
+        res = identify_window(tr, damper, FlowCoefficients(*m), settings, k, prior=prior)
         draws = res.chains.reshape(-1, res.chains.shape[-1])
         pick = np.random.default_rng([k, tr.index]).choice(len(draws), SBC_DRAWS, replace=False)
         d = draws[pick]

@@ -160,7 +160,7 @@ def _dp0_spread(plan, two: dict) -> dict:
     moves by -(J^T J)^-1 J^T dF/d(dp0) per unit of dp0, J the Jacobian in (log α_V, log p_R); central
     differences at the posterior median, with the kernel at rtol 1e-9 (its noise far below the differences).
     """
-    from bayesdamper.inference.problem import TransientProblem
+    from bayesdamper.inference.problem import WindowProblem
     from bayesdamper.io.segmentation import STEP_FORCE_WINDOW
 
     damper, flow = plan.ds.damper, plan.static.coefficients
@@ -174,7 +174,7 @@ def _dp0_spread(plan, two: dict) -> dict:
         theta = np.log([e["alpha_V"]["median"], e["p_R_Pa"]["median"]])
 
         def force(th, dp0, tr=tr):
-            pb = TransientProblem(tr.id, tr.time, tr.force, tr.t_step, dp0, tr.knot_times, tr.knot_displacements,
+            pb = WindowProblem(tr.id, tr.time, tr.force, tr.t_step, dp0, tr.knot_times, tr.knot_displacements,
                                   damper, flow, rtol=1e-9, atol=1e-3)
             f, ok = pb.simulate_force(*np.exp(th))
             assert ok

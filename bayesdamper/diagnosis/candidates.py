@@ -187,7 +187,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     ----------
     specs : list of CandidateSpec
         Candidates whose required parameters are all free (the effects already selected are re-fitted
-        with the new one: issue 10's "earlier selections re-fitted jointly in every round").
+        with the new one: earlier selections are re-fitted jointly in every round).
     start : dict
         ``{label: {param: value}}`` starting values; a candidate without one is searched on a grid first.
     fixed : dict

@@ -1,16 +1,16 @@
-"""The profile search's engine: every transient's (α_V, p_R) re-fitted for given shared parameters, in parallel,
+"""The profile search's engine: every window's own parameters re-fitted for given shared parameters, in parallel,
 and the shared parameters' Levenberg-Marquardt refinement by variable projection.
 
-:class:`ProfileEngine` evaluates S_k(ψ), the per-transient sums of squares of eq. (9) at their least-squares
-(log α_V, log p_R), with worker processes; each re-fit carries its transient's Jacobian from the last one
+A window's own parameters x are (log α_V, log p_R), plus the start force of a window that starts in motion and the
+flow coefficients of a data set without plateaus (:class:`~bayesdamper.inference.problem.EffectsProblem`).
+:class:`ProfileEngine` evaluates S_k(ψ), the per-window sums of squares of eq. (9) at their least-squares x, with
+worker processes; each re-fit carries its window's Jacobian from the last one
 (:mod:`bayesdamper.diagnosis.inner_fit`). :func:`_profile_lm` refines the shared parameters of a candidate
 (:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -30,8 +30,6 @@ _PROBLEMS: list = []
 #: (tests/test_confusion.py), whose baseline sits at the box bounds of (α_V, p_R) and whose only candidate gains
 #: 26 in ΔBIC_eff, showed how little slack the search has.
 LS_XTOL, LS_FTOL = 1e-4, 1e-7
-#: Search box of the per-transient (log α_V, log p_R) re-fit.
-_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
 
 
 def _inner_fit(args):
@@ -46,13 +44,12 @@ def _inner_fit(args):
     """
     k, eff, flow, warm, jac = args
     prob = _PROBLEMS[k]
-    if flow is not None:
-        prob = dataclasses.replace(prob, flow=flow)
+    lo, hi = prob.inner_box()
     f_meas = prob.force
     big = 1e3 * (np.abs(f_meas) + 1.0)
 
     def solve(x):
-        f, ok = prob.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
+        f, ok = prob.simulate_inner(x, eff, flow)
         return (f - f_meas) if ok and np.all(np.isfinite(f)) else None
 
     def resid(x):
@@ -60,26 +57,26 @@ def _inner_fit(args):
         return big if r is None else r
 
     def sse(x):
-        if not (_BOX[0][0] <= x[0] <= _BOX[1][0] and _BOX[0][1] <= x[1] <= _BOX[1][1]):
+        if np.any(x < lo) or np.any(x > hi):
             return 1e300
         r = resid(x)
         return float(r @ r) if r is not big else 1e300
 
-    x0 = np.clip(np.asarray(warm, dtype=float), _BOX[0] + 1e-9, _BOX[1] - 1e-9)
-    fit = refit(solve, x0, _BOX[0], _BOX[1], jac)
+    x0 = np.clip(np.asarray(warm, dtype=float), lo + 1e-9, hi - 1e-9)
+    fit = refit(solve, x0, lo, hi, jac)
     if fit.r is None:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
         return x0, 1e300, None, None
     if fit.converged:
         return fit.x, fit.sse, fit.r, fit.jac
-    x0 = np.clip(fit.x, _BOX[0] + 1e-9, _BOX[1] - 1e-9)
+    x0 = np.clip(fit.x, lo + 1e-9, hi - 1e-9)
     try:
-        ls = least_squares(resid, x0, method="trf", bounds=_BOX, diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
-                           ftol=LS_FTOL, max_nfev=40)
+        ls = least_squares(resid, x0, method="trf", bounds=(lo, hi), diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
+                           ftol=LS_FTOL, max_nfev=20 * x0.size)
         x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
     except (ValueError, np.linalg.LinAlgError):
         x_hat, ok_ls = x0, False
     if not ok_ls:
-        simplex = np.array([x0, x0 + [0.1, 0.0], x0 + [0.0, 0.1]])
+        simplex = np.vstack([x0, x0 + 0.1 * np.eye(x0.size)])
         res = minimize(sse, x0, method="Nelder-Mead",
                        options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
                                 "maxiter": 150})
@@ -91,7 +88,7 @@ def _inner_fit(args):
 
 
 def _psi_columns(args):
-    """Forward-difference columns ∂r/∂z_j of one transient at its fitted (α_V, p_R) (worker task).
+    """Forward-difference columns ∂r/∂z_j of one window at its fitted own parameters (worker task).
 
     ``effs``/``flows``: the effect argument and flow coefficients at z + h_j e_j for each j; a perturbed solve
     that fails gives a zero column (the direction is then left to the damping).
@@ -100,10 +97,9 @@ def _psi_columns(args):
     prob = _PROBLEMS[k]
     cols = np.zeros((r0.size, len(effs)))
     for j, (eff, flow, h) in enumerate(zip(effs, flows, hs, strict=True)):
-        pb = prob if flow is None else dataclasses.replace(prob, flow=flow)
-        f, ok = pb.simulate_force(math.exp(x[0]), math.exp(x[1]), eff)
+        f, ok = prob.simulate_inner(x, eff, flow)
         if ok and np.all(np.isfinite(f)):
-            cols[:, j] = ((f - pb.force) - r0) / h
+            cols[:, j] = ((f - prob.force) - r0) / h
     return cols
 
 
@@ -117,7 +113,7 @@ class ProfileEngine:
     """
 
     problems: list
-    warm: np.ndarray  # (n, 2) log α_V, log p_R
+    warm: list  # per window: its own parameters x (EffectsProblem.inner_box)
     workers: int = 1
     screen: np.ndarray | None = None
 
@@ -147,7 +143,7 @@ class ProfileEngine:
     def sensitivities(self, effs: list, flows: list, hs: np.ndarray, idx, xs: np.ndarray, resid: list) -> list:
         """Per transient of ``idx``: forward-difference Jacobian of its residual with respect to the shared
         parameters (columns: the effect arguments ``effs`` and flows ``flows`` at steps ``hs``), at its fitted
-        (log α_V, log p_R) ``xs`` and residual ``resid`` (None: infeasible, no columns)."""
+        own parameters ``xs`` and residual ``resid`` (None: infeasible, no columns)."""
         ks = [int(i) for i in idx]
         tasks = [(k, effs, flows, x, r, hs) for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
         cols = iter(self._map(_psi_columns, tasks))
@@ -159,13 +155,13 @@ class ProfileEngine:
         ks = range(len(self.problems)) if idx is None else [int(i) for i in idx]
         tasks = [(k, eff, flow, self.warm[k], self.jac[k]) for k in ks]
         out = self._map(_inner_fit, tasks)
-        xs = np.array([o[0] for o in out])
+        xs = [o[0] for o in out]
         sse = np.array([o[1] for o in out])
         for k, o in zip(ks, out, strict=True):
             if o[3] is not None:
                 self.jac[k] = o[3]
         if keep and idx is None:
-            self.warm = xs
+            self.warm = list(xs)
         return sse, xs, [o[2] for o in out]
 
 
@@ -232,7 +228,8 @@ def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_fo
             c = c * ok
             jx = engine.jac[int(k)]
             # only what the re-fit can absorb is projected out: not the direction of a parameter held at its bound
-            inside = (x > _BOX[0] + 1e-6) & (x < _BOX[1] - 1e-6)
+            b_lo, b_hi = engine.problems[int(k)].inner_box()
+            inside = (x > b_lo + 1e-6) & (x < b_hi - 1e-6)
             if jx is not None and inside.any():
                 q = np.linalg.qr(jx[:, inside])[0]
                 c = c - q @ (q.T @ c)

@@ -16,15 +16,12 @@ Otherwise the answer is "none". The search repeats until nothing passes (at most
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
-
 import numpy as np
 
 from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j, search_params
 from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
 from bayesdamper.diagnosis.unnamed import effect_reading
-from bayesdamper.physics.compose import ComposedEffects
 from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
@@ -35,71 +32,6 @@ SELECT_DELTA_BIC = -10.0
 MIN_J_REDUCTION = 0.2
 #: Rounds of the select-and-refit loop.
 MAX_ROUNDS = 3
-
-
-class FixedEffectsProblem:
-    """An augmented transient problem with its effect vector fixed: looks like a TransientProblem."""
-
-    def __init__(self, problem, eff: np.ndarray):
-        self.problem = problem
-        self.eff = eff if isinstance(eff, ComposedEffects) else np.asarray(eff, dtype=float)
-        self.force = problem.force
-        self.time = problem.time
-        self.dp0 = getattr(problem, "dp0", 0.0)
-        self.segment_id = getattr(problem, "segment_id", "")
-
-    def simulate_force(self, alpha_v: float, p_r: float):
-        return self.problem.simulate_force(alpha_v, p_r, self.eff)
-
-
-def _friction_corrected_static(plateaus, area: float, coulomb: float, source: str):
-    """Stage 1 refitted with the plateau forces reduced by the Coulomb friction [N]."""
-    from types import SimpleNamespace
-
-    from bayesdamper.inference.stage1 import fit_static
-
-    corr = [SimpleNamespace(direction=p.direction, flow_rate=p.flow_rate,
-                            pressure_drop=p.pressure_drop - coulomb / area) for p in plateaus]
-    return fit_static(corr, source=source)
-
-
-def _calibrate_task(args):
-    from bayesdamper.inference.stage2 import identify_transient
-
-    tr, prob, damper, flow, settings, seed = args
-    return identify_transient(tr, damper, flow, settings, seed, problem=prob)
-
-
-def calibrate_with(transients, problems, damper, flow, settings, seed: int, workers: int, progress) -> list:
-    """Stage 2 (emcee, as for the baseline) of every transient with the given problem objects."""
-    import multiprocessing as mp
-
-    tasks = [(tr, pb, damper, flow, settings, seed) for tr, pb in zip(transients, problems, strict=True)]
-    out = []
-    if workers <= 1:
-        for t in tasks:
-            out.append(_calibrate_task(t))
-            progress.advance()
-        return out
-    from bayesdamper.physics.compose import warm_up
-
-    warm_up()  # compiled once here, inherited by the forked workers
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx) as ex:
-        for r in ex.map(_calibrate_task, tasks):
-            out.append(r)
-            progress.advance()
-    progress(f"calibrated {len(out)} transient(s): {sum(r.entry['converged'] for r in out)} converged")
-    return out
-
-
-def _residuals_at_medians(results, problems) -> list[np.ndarray]:
-    out = []
-    for res, prob in zip(results, problems, strict=True):
-        e = res.entry
-        f, ok = prob.simulate_force(e["alpha_V"]["median"], e["p_R_Pa"]["median"])
-        out.append(f - prob.force if ok else prob.force.copy())
-    return out
 
 
 def report_text(d: dict) -> str:

@@ -1,11 +1,11 @@
 """The residual's dynamic signature: which signal of the calibrated model drives it, and through what filter.
 
-The diagnosis' first step on measured data (issue 10, part 1): from the calibrated eq. (7) model's own signals
-of every transient — pressure difference Δp [Pa], orifice flow Q [m^3/s] (eq. (8)), piston displacement y [m]
-and the time since the step τ [s] — :func:`bayesdamper.diagnosis.sysid.identify_residual_dynamics` picks the
+The diagnosis' first step on measured data: from the calibrated eq. (7) model's own signals of every window —
+pressure difference Δp [Pa], orifice flow Q [m^3/s] (eq. (8)), piston displacement y [m] and the time since the
+window's start τ [s] — :func:`bayesdamper.diagnosis.sysid.identify_residual_dynamics` picks the
 driver, its static law and the order of a linear filter to the residual by leave-one-speed-out prediction, and
-reports its poles with intervals. The piston velocity is constant within a transient window, so it is no driver
-here. The cross-correlation of residual and driver with its band is given before and after effects are added.
+reports its poles with intervals. The flow coefficients may differ per window (a data set without plateaus).
+The cross-correlation of residual and driver with its band is given before and after effects are added.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def model_signals(transient, model_force: np.ndarray, area: float, flow) -> dict
 
     Parameters
     ----------
-    transient : Transient
+    transient : Window
         Its ``time`` [s], ``t_step`` [s] and ``displacement`` [m].
     model_force : ndarray, shape (n_times,)
         Model force [N] at the window samples.
@@ -52,12 +52,17 @@ def model_signals(transient, model_force: np.ndarray, area: float, flow) -> dict
             "tau": np.asarray(transient.time, dtype=float) - transient.t_step}
 
 
+def _flows(flow, n: int) -> list:
+    """One flow-coefficient set per window: ``flow`` is one for all, or a sequence of them."""
+    return list(flow) if isinstance(flow, list | tuple) else [flow] * n
+
+
 def _inputs(transients, residuals, model_forces, area, flow) -> list[TransientSignals]:
     out = []
-    for tr, r, fm in zip(transients, residuals, model_forces, strict=True):
+    for tr, r, fm, fl in zip(transients, residuals, model_forces, _flows(flow, len(transients)), strict=True):
         dt = float(np.median(np.diff(tr.time)))
         out.append(TransientSignals(tr.id, f"{tr.velocity * 1e3:.2f} mm/s", dt, np.asarray(r, dtype=float),
-                                    model_signals(tr, fm, area, flow)))
+                                    model_signals(tr, fm, area, fl)))
     return out
 
 

@@ -474,7 +474,7 @@ def cross_correlation(residual, driver, max_lag: int) -> CrossCorrelation:
         N / N_eff = Σ_{|j| ≤ M} ρ_rr(j) ρ_uu(j) (M = ``BARTLETT_FRACTION`` of the shortest transient, at
         least L; N_eff ≤ N), the share of lags outside the band, and max |ρ_ru| / band.
     """
-    rs, us = ([np.asarray(x, float)] if np.ndim(x) == 1 else [np.asarray(y, float) for y in x]
+    rs, us = ([np.asarray(y, float) for y in x] if isinstance(x, list | tuple) else [np.asarray(x, float)]
               for x in (residual, driver))
     if len(rs) != len(us) or any(r.shape != u.shape or r.ndim != 1 for r, u in zip(rs, us, strict=False)):
         raise DataError("residual and driver must be 1-D arrays (or lists of them) of matching lengths")

@@ -1,4 +1,4 @@
-"""Candidates for dynamics no named effect holds, built from the residual's signature (issue 10, part 1).
+"""Candidates for dynamics no named effect holds, built from the residual's signature.
 
 Part 1 (:mod:`bayesdamper.diagnosis.signature`) identifies the residual's driver, static law and poles
 from the calibrated model's own signals. This module turns that into candidates of the generic effect

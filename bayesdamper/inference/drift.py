@@ -88,3 +88,28 @@ def fit_drift(speed: np.ndarray, mean: np.ndarray, sd: np.ndarray, credible_mass
     return {"slope_per_m_s": sl, "intercept": summ(intercept),
             "credible_nonzero": bool(sl["lo"] > 0 or sl["hi"] < 0),
             "intrinsic_scatter": float(np.sum(p * grid))}
+
+
+def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
+    """Slope of α_V and p_R against piston speed over the converged transients not piled against a prior bound
+    (and per direction)."""
+    out = {}
+    # converged posteriors that the data determine: one piled against a prior bound (rig-A's slow reversals, whose
+    # α_V-p_R ridge runs into the 10 MPa bound) has a mean set by the prior box, not by the test
+    # (each choice only if it leaves the three transients at two speeds a trend needs)
+    choices = ([e for e in entries if e["converged"] and not (e.get("shape") or {}).get("at_prior_bound")],
+               [e for e in entries if e["converged"]], entries)
+    ok = next(c for c in choices if len(c) >= 3 and len({e["velocity_m_s"] for e in c}) >= 2 or c is entries)
+    for name in ("alpha_V", "p_R_Pa"):
+        v = np.array([e["velocity_m_s"] for e in ok])
+        m = np.array([e["posterior_mean"][name] for e in ok])
+        s = np.array([e["posterior_sd"][name] for e in ok])
+        res = fit_drift(v, m, s, credible_mass, seed)
+        res["by_direction"] = {}
+        for d in (1, -1):
+            sel = np.array([e["direction"] == d for e in ok])
+            if sel.sum() >= 3 and np.ptp(v[sel]) > 0:
+                res["by_direction"][str(d)] = fit_drift(v[sel], m[sel], s[sel], credible_mass, seed)
+        res["n_transients"] = int(len(ok))
+        out[name] = res
+    return out

@@ -40,13 +40,22 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
+from bayesdamper.inference.likelihood import (
+    AR1,
+    PLATEAU,
+    WHITE,
+    _flow_log_prior,
+    _inside,
+    _joint_batch,
+    window_loglike,
+)
 from bayesdamper.inference.plateau_noise import PlateauNoise, ar1_from_segments, plateau_noise
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace, ParameterSpec
-from bayesdamper.inference.problem import freeze_window
-from bayesdamper.physics.single_state import solve_single_state
+from bayesdamper.inference.problem import freeze_arrays
+from bayesdamper.physics.excitation import PiecewisePolynomial
+from bayesdamper.physics.single_state import solve_eq7
 
 __all__ = ["AR1", "PLATEAU", "WHITE", "JointLogPosterior", "JointProblem", "PlateauNoise", "StageOnePrior",
            "ar1_from_segments", "central_jacobian", "fit_map", "plateau_noise"]
@@ -54,9 +63,6 @@ __all__ = ["AR1", "PLATEAU", "WHITE", "JointLogPosterior", "JointProblem", "Plat
 #: Names of the flow coefficients in the sampled vector.
 FLOW_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
 FLOW_UNITS = ("kg m^-4 s^-1", "kg m^-7") * 2
-#: Noise codes of the compiled log-posterior: white (scale marginalised), AR(1) with φ sampled (scale
-#: marginalised), AR(1) with φ and σ_e fixed from the plateaus.
-WHITE, AR1, PLATEAU = 0, 1, 2
 #: Half-width of the box of Δp(t_step) and of each flow coefficient, in standard deviations of its estimate:
 #: wide enough that the box never cuts the posterior (a Gaussian has 4e-33 beyond 12 sd).
 BOX_SDS = 12.0
@@ -67,22 +73,24 @@ FIT_ATOL = 1e-3  # [Pa]
 
 @dataclass(frozen=True)
 class StageOnePrior:
-    """What stage 1 hands to the joint stage 2: the flow-coefficient posterior and the plateau noise.
+    """What the parts of a data set other than a window tell its likelihood: the flow coefficients' posterior
+    from stage 1 (or nothing, a flat box, when there are no plateaus) and the noise.
 
     Attributes
     ----------
-    mean : ndarray, shape (4,)
-        Least-squares [C_L12, C_Q12, C_L21, C_Q21].
-    cov : ndarray, shape (4, 4)
+    mean : ndarray, shape (4,), or None
+        Least-squares [C_L12, C_Q12, C_L21, C_Q21]; None: no stage 1 (flat prior on the window's box).
+    cov : ndarray, shape (4, 4), or None
         Block-diagonal scale matrix s² (XᵀX)⁻¹ per direction.
-    dof : ndarray, shape (2,)
+    dof : ndarray, shape (2,), or None
         n − 2 per direction (forward, backward).
-    noise : PlateauNoise
+    noise : PlateauNoise or NoiseEstimate
+        AR(1) noise (``phi``, ``sigma_e``, ``sigma``) estimated where the model holds no error.
     """
 
-    mean: np.ndarray
-    cov: np.ndarray
-    dof: np.ndarray
+    mean: np.ndarray | None
+    cov: np.ndarray | None
+    dof: np.ndarray | None
     noise: PlateauNoise
 
     @classmethod
@@ -90,6 +98,16 @@ class StageOnePrior:
         """From a :class:`bayesdamper.inference.stage1.StaticFit`."""
         return cls(np.asarray(static.coefficients.as_array(), dtype=float), np.asarray(static.covariance, float),
                    np.array([static.forward.n - 2, static.backward.n - 2], dtype=float), noise)
+
+    @classmethod
+    def flat(cls, noise) -> StageOnePrior:
+        """No stage 1: the flow coefficients are sampled with the window's parameters under a flat prior."""
+        return cls(None, None, None, noise)
+
+    @property
+    def gaussian(self) -> bool:
+        """The flow coefficients have stage 1's Gaussian prior (else a flat box)."""
+        return self.mean is not None
 
     @property
     def prior_cov(self) -> np.ndarray:
@@ -102,12 +120,16 @@ class StageOnePrior:
         return out
 
     def precision_blocks(self) -> np.ndarray:
-        """Inverse of each direction's 2×2 prior covariance, shape (2, 2, 2)."""
+        """Inverse of each direction's 2×2 prior covariance, shape (2, 2, 2) (zeros for a flat prior)."""
+        if not self.gaussian:
+            return np.zeros((2, 2, 2))
         c = self.prior_cov
         return np.stack([np.linalg.inv(c[2 * d:2 * d + 2, 2 * d:2 * d + 2]) for d in (0, 1)])
 
     def log_prior(self, flow4: np.ndarray) -> float:
-        """Log density of the flow coefficients (up to a constant)."""
+        """Log density of the flow coefficients (up to a constant; 0 for a flat prior)."""
+        if not self.gaussian:
+            return 0.0
         prec = self.precision_blocks()
         out = 0.0
         for d in (0, 1):
@@ -116,77 +138,26 @@ class StageOnePrior:
         return out
 
 
-@njit(cache=True)
-def _joint_batch(thetas, lower, upper, noise_code, t_out, knot_t, knot_y, area, v01, v02, b0, force, pre_force,
-                 prior_mean, prior_prec, phi_fixed, inv_var_e, rtol, atol):
-    """Compiled log-posterior of rows (log α_V, log p_R, Δp0, C_L12, C_Q12, C_L21, C_Q21[, φ]).
+#: Upper end of a flat prior's box of a flow coefficient (no stage 1), in units of the coefficient that alone
+#: carries the window's largest force at its largest flow: 100x leaves two decades above anything the window can
+#: support while keeping the prior proper; 0 (a purely laminar or purely quadratic path) is inside.
+STATIC_BOX = 100.0
+#: Half-width of a flat prior's box of Δp at the start of a window that starts in motion, in units of the
+#: window's force range / A_P (about the force range's centre).
+DP0_BOX = 1.0
 
-    -inf outside the box (checked before solving), for a failed solve and a degenerate residual; never NaN.
-    """
-    n, ndim = thetas.shape
-    out = np.empty(n)
-    n_pre = pre_force.shape[0]
-    n_w = force.shape[0]
-    n_all = n_pre + n_w
-    flow4 = np.empty(4)
-    for k in range(n):
-        inside = True
-        for j in range(ndim):
-            v = thetas[k, j]
-            if not (v >= lower[j] and v <= upper[j]):
-                inside = False
-        if not inside:
-            out[k] = -np.inf
-            continue
-        lp = 0.0
-        for d in range(2):
-            x0 = thetas[k, 3 + 2 * d] - prior_mean[2 * d]
-            x1 = thetas[k, 4 + 2 * d] - prior_mean[2 * d + 1]
-            lp -= 0.5 * (prior_prec[d, 0, 0] * x0 * x0 + 2.0 * prior_prec[d, 0, 1] * x0 * x1
-                         + prior_prec[d, 1, 1] * x1 * x1)
-        for j in range(4):
-            flow4[j] = thetas[k, 3 + j]
-        dp0 = thetas[k, 2]
-        dp, status, _ = solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4,
-                                           np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
-        if status != 0:
-            out[k] = -np.inf
-            continue
-        f0 = area * dp0
-        if noise_code == WHITE:
-            s = 0.0
-            for i in range(n_all):
-                r = (f0 - pre_force[i]) if i < n_pre else (area * dp[i - n_pre] - force[i - n_pre])
-                s += r * r
-            ll = -0.5 * n_all * np.log(s) if s > 0.0 else -np.inf
-        else:
-            phi = thetas[k, 7] if noise_code == AR1 else phi_fixed
-            r_prev = (f0 - pre_force[0]) if n_pre > 0 else (area * dp[0] - force[0])
-            s_pre = (1.0 - phi * phi) * r_prev * r_prev
-            s_w = 0.0
-            if n_pre == 0:
-                s_w, s_pre = s_pre, 0.0
-            for i in range(1, n_all):
-                r = (f0 - pre_force[i]) if i < n_pre else (area * dp[i - n_pre] - force[i - n_pre])
-                e = r - phi * r_prev
-                if i < n_pre:
-                    s_pre += e * e
-                else:
-                    s_w += e * e
-                r_prev = r
-            s = s_pre + s_w
-            if noise_code == AR1:
-                ll = 0.5 * np.log1p(-phi * phi) - 0.5 * n_all * np.log(s) if s > 0.0 else -np.inf
-            else:
-                ll = -0.5 * s_pre * inv_var_e - 0.5 * n_w * np.log(s_w) if s_w > 0.0 else -np.inf
-        v = lp + ll
-        out[k] = v if np.isfinite(v) else -np.inf
-    return out
+
+def flow_scales(time: np.ndarray, force: np.ndarray, drive, area: float) -> np.ndarray:
+    """[C_L, C_Q, C_L, C_Q] that alone carry the window's largest |force| (99th percentile) at its largest flow."""
+    q = area * np.abs(drive.velocity(time))
+    qmax = max(float(np.quantile(q, 0.99)), 1e-12)
+    dpmax = max(float(np.quantile(np.abs(force), 0.99)) / area, 1.0)
+    return np.array([dpmax / qmax, dpmax / qmax**2] * 2)
 
 
 @dataclass(frozen=True)
 class JointProblem:
-    """One transient with its pre-step samples, bound to the damper, the stage-1 prior and a noise model.
+    """One window with its pre-step samples, bound to the damper, the flow prior and a noise model.
 
     Attributes
     ----------
@@ -194,15 +165,26 @@ class JointProblem:
     time, force : ndarray
         Window sample times [s] (from t_step) and measured force [N].
     pre_time, pre_force : ndarray
-        Samples of the settled stretch just before the step [s], [N]; model force A_P Δp0 there.
-    t_step, knot_times, knot_displacements
-        As :class:`bayesdamper.inference.problem.TransientProblem`.
-    dp0_estimate : float
-        Mean of ``pre_force`` / A_P [Pa] (the centre of Δp0's box).
+        Samples of the settled stretch just before the step [s], [N]; model force A_P Δp0 there. Empty for a
+        window that starts in motion (Δp0 then has a flat prior on a box about the window's force).
+    t_step : float
+        Start of the window [s].
+    drive : PiecewisePolynomial
+        The input from ``t_step`` over the window [m].
+    dp0_start : float
+        Estimate of Δp0 [Pa]: the mean of ``pre_force`` / A_P, else the window's start value.
     damper : DamperConstants
     prior : StageOnePrior
     noise_code : int
         :data:`WHITE`, :data:`AR1` or :data:`PLATEAU`.
+    effects : ComposedEffects or None
+        Effects added to eq. (7) (the composed kernel), held at their values; None: eq. (7) alone.
+    record_drive : PiecewisePolynomial or None
+        The record's whole input (effects with a memory see the history before the window); needed with effects.
+
+    The third sampled entry is the force at the start over A_P [Pa]: Δp0 for eq. (7) alone; with effects the
+    kernel solves Δp0 so that the model's force in the steady state before the start equals it (a friction or
+    offset force included), the settled samples before the start measuring that force.
     """
 
     segment_id: str
@@ -211,37 +193,48 @@ class JointProblem:
     pre_time: np.ndarray
     pre_force: np.ndarray
     t_step: float
-    knot_times: np.ndarray
-    knot_displacements: np.ndarray
+    drive: PiecewisePolynomial
+    dp0_start: float
     damper: DamperConstants
     prior: StageOnePrior
     noise_code: int = PLATEAU
     rtol: float = 1e-5
     atol: float = 1.0
+    effects: object = None
+    record_drive: PiecewisePolynomial | None = None
 
     def __post_init__(self) -> None:
-        freeze_window(self, ("time", "force", "pre_time", "pre_force", "knot_times", "knot_displacements"))
+        freeze_arrays(self, ("time", "force", "pre_time", "pre_force"))
+        if self.effects is not None:
+            drive = self.effects.transform_input(self.record_drive).cover(self.t_step, float(self.time[-1]))
+            v0 = drive.velocity_before(self.t_step) if self.settled_start else float(drive.velocity(self.t_step))
+            object.__setattr__(self, "_effects_input", (drive, v0))
 
     @classmethod
-    def from_transient(cls, transient, damper: DamperConstants, prior: StageOnePrior, noise_code: int = PLATEAU,
-                       **kw) -> JointProblem:
-        pre_t = getattr(transient, "pre_time", np.empty(0))
-        pre_f = getattr(transient, "pre_force", np.empty(0))
-        return cls(transient.id, transient.time, transient.force, pre_t, pre_f, transient.t_step,
-                   transient.knot_times, transient.knot_displacements, damper, prior, noise_code, **kw)
+    def from_window(cls, window, damper: DamperConstants, prior: StageOnePrior, noise_code: int = PLATEAU,
+                    effects=None, **kw) -> JointProblem:
+        return cls(window.id, window.time, window.force, window.pre_time, window.pre_force, window.t_step,
+                   window.local_drive, float(window.dp0), damper, prior, noise_code, effects=effects,
+                   record_drive=window.drive if effects is not None else None, **kw)
+
+    @property
+    def settled_start(self) -> bool:
+        """Δp0 has its own data (the samples before the step)."""
+        return self.pre_force.size > 0
 
     @property
     def dp0_estimate(self) -> float:
-        f = self.pre_force if self.pre_force.size else self.force[:1]
-        return float(np.mean(f)) / self.damper.piston_area
+        if self.settled_start:
+            return float(np.mean(self.pre_force)) / self.damper.piston_area
+        return float(self.dp0_start)
 
     @property
     def dp0(self) -> float:
-        """The step's Δp estimated from the samples before it [Pa] (for stores and figures)."""
+        """The start's Δp estimate [Pa] (for stores and figures)."""
         return self.dp0_estimate
 
     def dp0_sd(self) -> float:
-        """Standard deviation of :attr:`dp0_estimate` under the plateau noise [Pa] (AR(1) mean variance)."""
+        """Standard deviation of :attr:`dp0_estimate` under the noise [Pa] (AR(1) mean variance)."""
         nz = self.prior.noise
         n = max(self.pre_force.size, 1)
         phi = nz.phi
@@ -252,13 +245,26 @@ class JointProblem:
 
     def space(self, alpha_v_bounds=ALPHA_V_BOUNDS, p_r_bounds=P_R_BOUNDS) -> ParameterSpace:
         """The sampled vector: log α_V, log p_R, Δp0, the four flow coefficients[, φ for :data:`AR1`]."""
-        d0, s0 = self.dp0_estimate, self.dp0_sd()
-        half = BOX_SDS * s0 + 1e-3 * abs(d0) + 10.0
+        area = self.damper.piston_area
+        d0 = self.dp0_estimate
+        if self.settled_start:
+            half = BOX_SDS * self.dp0_sd() + 1e-3 * abs(d0) + 10.0
+            dp0_box = (d0 - half, d0 + half)
+        else:
+            lo, hi = float(np.min(self.force)) / area, float(np.max(self.force)) / area
+            half = DP0_BOX * max(hi - lo, 10.0)
+            dp0_box = (0.5 * (lo + hi) - half, 0.5 * (lo + hi) + half)
         specs = [ParameterSpec("alpha_V", "-", *alpha_v_bounds), ParameterSpec("p_R_Pa", "Pa", *p_r_bounds),
-                 ParameterSpec("dp0_Pa", "Pa", d0 - half, d0 + half, log=False)]
-        sd = np.sqrt(np.diag(self.prior.prior_cov))
-        for name, unit, m, s in zip(FLOW_NAMES, FLOW_UNITS, self.prior.mean, sd, strict=True):
-            specs.append(ParameterSpec(name, unit, max(m - BOX_SDS * s, 1e-6 * abs(m)), m + BOX_SDS * s, log=False))
+                 ParameterSpec("dp0_Pa", "Pa", *dp0_box, log=False)]
+        if self.prior.gaussian:
+            sd = np.sqrt(np.diag(self.prior.prior_cov))
+            for name, unit, m, s in zip(FLOW_NAMES, FLOW_UNITS, self.prior.mean, sd, strict=True):
+                specs.append(ParameterSpec(name, unit, max(m - BOX_SDS * s, 1e-6 * abs(m)), m + BOX_SDS * s,
+                                           log=False))
+        else:
+            scales = flow_scales(self.time, self.force, self.drive, area)
+            for name, unit, sc in zip(FLOW_NAMES, FLOW_UNITS, scales, strict=True):
+                specs.append(ParameterSpec(name, unit, 0.0, float(STATIC_BOX * sc), log=False))
         if self.noise_code == AR1:
             specs.append(ParameterSpec("phi", "-", *PHI_BOUNDS, log=False))
         return ParameterSpace(tuple(specs))
@@ -269,12 +275,21 @@ class JointProblem:
     def simulate_window(self, theta: np.ndarray, rtol: float | None = None,
                         atol: float | None = None) -> tuple[np.ndarray, bool]:
         """Model force [N] at the window samples for a transformed ``theta``, and whether the solve succeeded."""
-        d = self.damper
-        dp, status, _ = solve_single_state(self.time, self.knot_times, self.knot_displacements, float(theta[2]),
-                                           d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
-                                           d.liquid_bulk_modulus, np.ascontiguousarray(theta[3:7], dtype=float),
-                                           math.exp(theta[0]), math.exp(theta[1]), 0, 0.0,
-                                           self.rtol if rtol is None else rtol, self.atol if atol is None else atol)
+        d, w = self.damper, self.drive
+        if self.effects is not None:
+            from bayesdamper.physics.compose import solve_composed
+
+            drive, v0 = self._effects_input
+            force, status = solve_composed(self.effects, self.time, drive, self.t_step, float(theta[2]) * d.piston_area,
+                                           v0, d, np.ascontiguousarray(theta[3:7], dtype=float), math.exp(theta[0]),
+                                           math.exp(theta[1]), self.rtol if rtol is None else rtol,
+                                           self.atol if atol is None else atol, from_force=True)
+            return force, status == 0
+        dp, status, _ = solve_eq7(self.time, w.breaks, w.coefs, w.restart, float(theta[2]), d.piston_area,
+                                  d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus,
+                                  np.ascontiguousarray(theta[3:7], dtype=float), math.exp(theta[0]),
+                                  math.exp(theta[1]), 0, 0.0, self.rtol if rtol is None else rtol,
+                                  self.atol if atol is None else atol)
         return d.piston_area * dp, status == 0
 
     def residual(self, theta: np.ndarray, rtol=None, atol=None) -> np.ndarray | None:
@@ -294,7 +309,8 @@ class JointLogPosterior:
         self.space = space
         self._lower, self._upper = space.lower, space.upper
         self._prec = problem.prior.precision_blocks()
-        self._prec_chol = np.linalg.cholesky(self._prec)  # the flow prior's pseudo-residuals in whitened()
+        # the flow prior's pseudo-residuals in whitened() (none for a flat prior)
+        self._prec_chol = np.linalg.cholesky(self._prec) if problem.prior.gaussian else None
         nz = problem.prior.noise
         self._phi, self._inv_var = float(nz.phi), 1.0 / float(nz.sigma_e) ** 2
 
@@ -302,9 +318,24 @@ class JointLogPosterior:
         p = self.problem
         d = p.damper
         thetas = np.ascontiguousarray(np.atleast_2d(thetas), dtype=np.float64)
-        return _joint_batch(thetas, self._lower, self._upper, p.noise_code, p.time, p.knot_times,
-                            p.knot_displacements, d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
-                            d.liquid_bulk_modulus, p.force, p.pre_force, p.prior.mean, self._prec,
+        w = p.drive
+        mean = p.prior.mean if p.prior.gaussian else np.zeros(4)
+        if p.effects is not None:  # the composed kernel row by row, the same likelihood
+            out = np.full(thetas.shape[0], -np.inf)
+            for k, th in enumerate(thetas):
+                if not _inside(th, self._lower, self._upper):
+                    continue
+                f, ok = p.simulate_window(th)
+                if not ok:
+                    continue
+                phi = th[7] if p.noise_code == AR1 else self._phi
+                v = _flow_log_prior(th, mean, self._prec) + window_loglike(
+                    f, p.force, d.piston_area * th[2], p.pre_force, p.noise_code, phi, self._inv_var)
+                out[k] = v if np.isfinite(v) else -np.inf
+            return out
+        return _joint_batch(thetas, self._lower, self._upper, p.noise_code, p.time, w.breaks, w.coefs, w.restart,
+                            d.piston_area, d.chamber_volume_1, d.chamber_volume_2,
+                            d.liquid_bulk_modulus, p.force, p.pre_force, mean, self._prec,
                             self._phi, self._inv_var, p.rtol, p.atol)
 
     def __call__(self, theta: np.ndarray) -> float:
@@ -353,6 +384,8 @@ class JointLogPosterior:
         e = e.copy()
         e[:n_pre] /= self.problem.prior.noise.sigma_e
         e[n_pre:] /= sigma_w
+        if self._prec_chol is None:
+            return e
         prior = [self._prec_chol[d].T @ (theta[3 + 2 * d:5 + 2 * d] - self.problem.prior.mean[2 * d:2 * d + 2])
                  for d in (0, 1)]
         return np.concatenate([e, *prior])

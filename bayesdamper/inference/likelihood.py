@@ -35,8 +35,8 @@ import numpy as np
 from numba import njit
 
 from bayesdamper.inference.priors import PHI_BOUNDS, ParameterSpace, ParameterSpec
-from bayesdamper.inference.problem import TransientProblem
-from bayesdamper.physics.single_state import solve_single_state
+from bayesdamper.inference.problem import WindowProblem
+from bayesdamper.physics.single_state import solve_eq7
 
 #: Names of the noise models accepted by :func:`make_noise_model` and the CLI. ``"plateau"`` (the default of
 #: triangular tests): AR(1) with φ and σ_e estimated from the plateaus and held fixed
@@ -76,12 +76,15 @@ def ar1_loglike(r: np.ndarray, phi: float, sigma: float) -> float:
     return float(-0.5 * n * np.log(2 * np.pi * sigma**2) + 0.5 * np.log1p(-phi * phi) - s / (2 * sigma**2))
 
 
-#: Noise-model codes of the compiled log-posterior.
-_WHITE, _AR1 = 0, 1
+#: Noise-model codes of the compiled log-posteriors: white (scale marginalised), AR(1) with φ sampled (scale
+#: marginalised), AR(1) with φ fixed (estimated where the model holds no error) and the window's scale marginalised
+#: (σ_e known before the window's start).
+WHITE, AR1, PLATEAU = 0, 1, 2
+
 
 
 @njit(cache=True)
-def _log_posterior_batch(thetas, lower, upper, noise_code, t_out, knot_t, knot_y, dp0, area, v01, v02, b0,
+def _log_posterior_batch(thetas, lower, upper, noise_code, t_out, brk, coef, restart, dp0, area, v01, v02, b0,
                          flow4, force, rtol, atol):
     """Compiled log-posterior of many parameter vectors (the sampler's hot path).
 
@@ -100,12 +103,12 @@ def _log_posterior_batch(thetas, lower, upper, noise_code, t_out, knot_t, knot_y
         if not inside:
             out[k] = -np.inf
             continue
-        dp, status, _ = solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4,
-                                           np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
+        dp, status, _ = solve_eq7(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4,
+                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
         if status != 0:
             out[k] = -np.inf
             continue
-        if noise_code == _WHITE:
+        if noise_code == WHITE:
             s = 0.0
             for i in range(n_t):
                 r = area * dp[i] - force[i]
@@ -131,7 +134,7 @@ class WhiteNoise:
 
     name: str = "white"
     params: tuple[ParameterSpec, ...] = ()
-    code: int = _WHITE
+    code: int = WHITE
 
     def loglike(self, r: np.ndarray, noise_theta: np.ndarray) -> float:
         return float(-0.5 * r.size * np.log(r @ r))
@@ -143,7 +146,7 @@ class AR1Noise:
 
     name: str = "ar1"
     params: tuple[ParameterSpec, ...] = (ParameterSpec("phi", "-", *PHI_BOUNDS, log=False),)
-    code: int = _AR1
+    code: int = AR1
 
     def loglike(self, r: np.ndarray, noise_theta: np.ndarray) -> float:
         phi = float(noise_theta[0])
@@ -169,7 +172,7 @@ class LogPosterior:
     Never returns NaN. Picklable (it holds only arrays and frozen dataclasses).
     """
 
-    def __init__(self, problem: TransientProblem, noise=None, space: ParameterSpace | None = None):
+    def __init__(self, problem: WindowProblem, noise=None, space: ParameterSpace | None = None):
         self.problem = problem
         self.noise = noise if noise is not None else make_noise_model(DEFAULT_NOISE_MODEL)
         self.space = space if space is not None else ParameterSpace.default(self.noise.params)
@@ -181,16 +184,17 @@ class LogPosterior:
     def batch(self, thetas: np.ndarray) -> np.ndarray:
         """Log-posterior of each row of ``thetas``, shape (n, ndim) -> (n,) (emcee ``vectorize=True``).
 
-        Compiled for the plain eq. (7) :class:`TransientProblem`; any other problem (a model with
+        Compiled for the plain eq. (7) :class:`WindowProblem`; any other problem (a model with
         effects) goes through its own ``simulate_force`` row by row.
         """
         p = self.problem
-        if not isinstance(p, TransientProblem):
+        if not isinstance(p, WindowProblem):
             return np.array([self.reference(t) for t in np.atleast_2d(thetas)])
         d = p.damper
         thetas = np.ascontiguousarray(np.atleast_2d(thetas), dtype=np.float64)
-        return _log_posterior_batch(thetas, self._lower, self._upper, self.noise.code, p.time, p.knot_times,
-                                    p.knot_displacements, float(p.dp0), d.piston_area, d.chamber_volume_1,
+        w = p.drive
+        return _log_posterior_batch(thetas, self._lower, self._upper, self.noise.code, p.time, w.breaks, w.coefs,
+                                    w.restart, float(p.dp0), d.piston_area, d.chamber_volume_1,
                                     d.chamber_volume_2, d.liquid_bulk_modulus, p.flow_array, p.force,
                                     p.rtol, p.atol)
 
@@ -224,3 +228,88 @@ class LogPosterior:
             return np.inf
         f = self.problem.force
         return float(np.sqrt(r @ r) / np.sqrt(f @ f))
+
+
+# ----------------------------------------------------------------------------- the window likelihood
+@njit(cache=True)
+def _flow_log_prior(theta, prior_mean, prior_prec):
+    """Gaussian log density of the flow coefficients ``theta[3:7]`` (up to a constant; 0 for zero precision)."""
+    lp = 0.0
+    for d in range(2):
+        x0 = theta[3 + 2 * d] - prior_mean[2 * d]
+        x1 = theta[4 + 2 * d] - prior_mean[2 * d + 1]
+        lp -= 0.5 * (prior_prec[d, 0, 0] * x0 * x0 + 2.0 * prior_prec[d, 0, 1] * x0 * x1
+                     + prior_prec[d, 1, 1] * x1 * x1)
+    return lp
+
+
+@njit(cache=True)
+def window_loglike(model, force, f0, pre_force, noise_code, phi, inv_var_e):
+    """Log-likelihood of a window (module docstring): the model force ``model`` [N] at the window's samples and
+    the constant ``f0`` [N] over the settled samples before its start, against the measured ``force`` and
+    ``pre_force``. ``phi``: the AR(1) coefficient (sampled for :data:`AR1`, fixed for :data:`PLATEAU`);
+    ``inv_var_e``: 1/σ_e² of the innovations before the start (:data:`PLATEAU`). -inf for a degenerate residual.
+    """
+    n_pre = pre_force.shape[0]
+    n_w = force.shape[0]
+    n_all = n_pre + n_w
+    if noise_code == WHITE:
+        s = 0.0
+        for i in range(n_all):
+            r = (f0 - pre_force[i]) if i < n_pre else (model[i - n_pre] - force[i - n_pre])
+            s += r * r
+        return -0.5 * n_all * np.log(s) if s > 0.0 else -np.inf
+    r_prev = (f0 - pre_force[0]) if n_pre > 0 else (model[0] - force[0])
+    s_pre = (1.0 - phi * phi) * r_prev * r_prev
+    s_w = 0.0
+    if n_pre == 0:
+        s_w, s_pre = s_pre, 0.0
+    for i in range(1, n_all):
+        r = (f0 - pre_force[i]) if i < n_pre else (model[i - n_pre] - force[i - n_pre])
+        e = r - phi * r_prev
+        if i < n_pre:
+            s_pre += e * e
+        else:
+            s_w += e * e
+        r_prev = r
+    if noise_code == AR1:
+        s = s_pre + s_w
+        return 0.5 * np.log1p(-phi * phi) - 0.5 * n_all * np.log(s) if s > 0.0 else -np.inf
+    return -0.5 * s_pre * inv_var_e - 0.5 * n_w * np.log(s_w) if s_w > 0.0 else -np.inf
+
+
+@njit(cache=True)
+def _inside(theta, lower, upper):
+    for j in range(theta.shape[0]):
+        if not (theta[j] >= lower[j] and theta[j] <= upper[j]):  # also false for NaN
+            return False
+    return True
+
+
+@njit(cache=True)
+def _joint_batch(thetas, lower, upper, noise_code, t_out, brk, coef, restart, area, v01, v02, b0, force, pre_force,
+                 prior_mean, prior_prec, phi_fixed, inv_var_e, rtol, atol):
+    """Compiled log-posterior of eq. (7) at rows (log α_V, log p_R, F0/A_P, C_L12, C_Q12, C_L21, C_Q21[, φ]).
+
+    -inf outside the box (checked before solving), for a failed solve and a degenerate residual; never NaN.
+    """
+    n, ndim = thetas.shape
+    out = np.empty(n)
+    flow4 = np.empty(4)
+    for k in range(n):
+        if not _inside(thetas[k], lower, upper):
+            out[k] = -np.inf
+            continue
+        lp = _flow_log_prior(thetas[k], prior_mean, prior_prec)
+        for j in range(4):
+            flow4[j] = thetas[k, 3 + j]
+        dp0 = thetas[k, 2]
+        dp, status, _ = solve_eq7(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4,
+                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
+        if status != 0:
+            out[k] = -np.inf
+            continue
+        phi = thetas[k, 7] if noise_code == AR1 else phi_fixed
+        v = lp + window_loglike(area * dp, force, area * dp0, pre_force, noise_code, phi, inv_var_e)
+        out[k] = v if np.isfinite(v) else -np.inf
+    return out

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from bayesdamper.inference.priors import ParameterSpace
-from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.inference.problem import WindowProblem
 
 #: Start grid of the multi-start search (α_V [-], p_R [Pa]), spanning the default prior box.
 START_ALPHA_V = (5.0, 50.0, 500.0)
@@ -46,7 +46,7 @@ class PointFit:
     n_solves: int
 
 
-def _cost(problem: TransientProblem, space: ParameterSpace, x: np.ndarray, counter: list) -> float:
+def _cost(problem: WindowProblem, space: ParameterSpace, x: np.ndarray, counter: list) -> float:
     counter[0] += 1
     if np.any(x < space.lower[:2]) or np.any(x > space.upper[:2]):
         return 1e3 + float(np.sum(np.maximum(space.lower[:2] - x, 0) + np.maximum(x - space.upper[:2], 0)))
@@ -57,7 +57,7 @@ def _cost(problem: TransientProblem, space: ParameterSpace, x: np.ndarray, count
     return float(np.sqrt(r @ r) / np.sqrt(problem.force @ problem.force))
 
 
-def fit_point(problem: TransientProblem, space: ParameterSpace | None = None,
+def fit_point(problem: WindowProblem, space: ParameterSpace | None = None,
               starts: tuple[tuple[float, float], ...] | None = None) -> PointFit:
     """Multi-start Nelder-Mead minimisation of eq. (9) in (log α_V, log p_R).
 

@@ -1,18 +1,26 @@
-"""Binding of the forward model to one measured transient (model never sees data; this does).
+"""Binding of the forward model to one window of measured data (the model never sees data; this does).
 
-A :class:`TransientProblem` keeps read-only copies of one transient window (sample times, measured
-force, fitted piecewise-linear displacement, initial Δp) and the fixed damper constants and stage-1
-flow coefficients, and turns (α_V, p_R) into a computed force history F_C = A_P Δp [N].
+A :class:`WindowProblem` keeps read-only copies of one window (sample times, measured force, the input from the
+window's start, initial Δp) and the fixed damper constants and flow coefficients, and turns (α_V, p_R) into a
+computed force history F_C = A_P Δp [N] by eq. (7). An :class:`EffectsProblem` does the same with effects added
+(the composed kernel of :mod:`bayesdamper.physics.compose`), driven by the record's whole input so that effects
+with a memory (backlash, lags) see the history before the window.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from bayesdamper.core.errors import SettingsError
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
-from bayesdamper.physics import single_state as model
+from bayesdamper.physics.compose import ComposedEffects, solve_composed
+from bayesdamper.physics.excitation import PiecewisePolynomial
+from bayesdamper.physics.single_state import solve_eq7
+
+__all__ = ["LIKELIHOOD_ATOL", "LIKELIHOOD_RTOL", "EffectsProblem", "WindowProblem", "freeze_arrays"]
 
 #: Kernel tolerances used inside the likelihood. The kernel's relative L2 error at rtol 1e-5 is < 1e-5
 #: over the prior box (benchmarks/forward.py): ~0.1 N on rig-A forces, two orders below the 12 N noise.
@@ -20,44 +28,41 @@ LIKELIHOOD_RTOL = 1e-5
 LIKELIHOOD_ATOL = 1.0  # [Pa]: far below 1 N / A_P force resolution
 
 
-def freeze_window(problem, names: tuple[str, ...]) -> None:
-    """Make a frozen window problem's arrays read-only float64 copies, and check its knots cover its samples.
-
-    A sample at the window end that rounding put a hair (1e-9 relative) past the last knot extends that knot.
-    ``problem`` needs ``segment_id``, ``time`` and ``knot_times`` among ``names``.
-    """
+def freeze_arrays(obj, names: tuple[str, ...]) -> None:
+    """Replace the array attributes ``names`` of a frozen dataclass by read-only float64 copies."""
     for name in names:
-        arr = np.ascontiguousarray(getattr(problem, name), dtype=np.float64).copy()
+        arr = np.ascontiguousarray(getattr(obj, name), dtype=np.float64).copy()
         arr.flags.writeable = False
-        object.__setattr__(problem, name, arr)
-    kt, t = problem.knot_times, problem.time
-    if t[-1] > kt[-1] and t[-1] - kt[-1] <= 1e-9 * max(1.0, abs(float(kt[-1]))):
-        kt = kt.copy()
-        kt[-1] = t[-1]
-        kt.flags.writeable = False
-        object.__setattr__(problem, "knot_times", kt)
-    if not (problem.knot_times[0] <= t[0] and t[-1] <= problem.knot_times[-1]):
-        raise ValueError(f"{problem.segment_id}: knots must cover the sample times")
+        object.__setattr__(obj, name, arr)
+
+
+def _local(drive: PiecewisePolynomial, t_step: float, time: np.ndarray, segment_id: str) -> PiecewisePolynomial:
+    """The input from the window's start, covering its samples (a sample a rounding error past its end holds)."""
+    t_end = float(time[-1])
+    if not (drive.start <= t_step <= float(time[0])):
+        raise SettingsError(f"{segment_id}: the input must start at or before the window, and the samples at or "
+                            "after the window's start")
+    return drive.window(t_step, max(t_end, t_step + 1e-9))
 
 
 @dataclass(frozen=True)
-class TransientProblem:
-    """One transient window bound to the damper and its static flow coefficients.
+class WindowProblem:
+    """One window bound to the damper and its flow coefficients: (α_V, p_R) -> force by eq. (7).
 
     Attributes
     ----------
     segment_id : str
-        Identifier of the transient.
+        Identifier of the window.
     time : ndarray, shape (n_times,)
         Absolute sample times [s], the first at or after ``t_step``.
     force : ndarray, shape (n_times,)
         Measured force F_E [N].
     t_step : float
-        Time of the velocity step [s]; Δp(t_step) = ``dp0``.
+        Start of the window [s]; Δp(t_step) = ``dp0``.
     dp0 : float
         Initial pressure difference [Pa].
-    knot_times, knot_displacements : ndarray
-        Piecewise-linear piston displacement over the window [s], [m].
+    drive : PiecewisePolynomial
+        Piston displacement from ``t_step`` over the window [m].
     damper : DamperConstants
     flow : FlowCoefficients
     """
@@ -67,40 +72,210 @@ class TransientProblem:
     force: np.ndarray
     t_step: float
     dp0: float
-    knot_times: np.ndarray
-    knot_displacements: np.ndarray
+    drive: PiecewisePolynomial
     damper: DamperConstants
     flow: FlowCoefficients
     rtol: float = LIKELIHOOD_RTOL
     atol: float = LIKELIHOOD_ATOL
 
     def __post_init__(self) -> None:
-        freeze_window(self, ("time", "force", "knot_times", "knot_displacements"))
+        freeze_arrays(self, ("time", "force"))
+        object.__setattr__(self, "drive", _local(self.drive, self.t_step, self.time, self.segment_id))
         object.__setattr__(self, "flow_array", self.flow.as_array())
 
     @classmethod
-    def from_transient(cls, transient, damper: DamperConstants, flow: FlowCoefficients,
-                       **kw) -> TransientProblem:
-        """Build from a :class:`bayesdamper.io.segments.Transient`."""
-        return cls(transient.id, transient.time, transient.force, transient.t_step, transient.dp0,
-                   transient.knot_times, transient.knot_displacements, damper, flow, **kw)
+    def from_window(cls, window, damper: DamperConstants, flow: FlowCoefficients, **kw) -> WindowProblem:
+        """Build from a :class:`bayesdamper.io.windows.Window`."""
+        return cls(window.id, window.time, window.force, window.t_step, window.dp0, window.local_drive, damper,
+                   flow, **kw)
 
-    def with_flow(self, flow: FlowCoefficients) -> TransientProblem:
+    def with_flow(self, flow: FlowCoefficients) -> WindowProblem:
         """The same window with other flow coefficients."""
-        return TransientProblem(self.segment_id, self.time, self.force, self.t_step, self.dp0,
-                                self.knot_times, self.knot_displacements, self.damper, flow,
-                                self.rtol, self.atol)
+        return WindowProblem(self.segment_id, self.time, self.force, self.t_step, self.dp0, self.drive,
+                             self.damper, flow, self.rtol, self.atol)
 
     def simulate_dp(self, alpha_v: float, p_r: float) -> tuple[np.ndarray, bool]:
         """Δp [Pa] at the sample times by eq. (7), and whether the solve succeeded."""
-        d = self.damper
-        dp, status, _ = model.solve_single_state(
-            self.time, self.knot_times, self.knot_displacements, self.dp0,
-            d.piston_area, d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus,
-            self.flow_array, float(alpha_v), float(p_r), 0, 0.0, self.rtol, self.atol)
+        d, w = self.damper, self.drive
+        dp, status, _ = solve_eq7(self.time, w.breaks, w.coefs, w.restart, self.dp0, d.piston_area,
+                                  d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus, self.flow_array,
+                                  float(alpha_v), float(p_r), 0, 0.0, self.rtol, self.atol)
         return dp, status == 0
 
     def simulate_force(self, alpha_v: float, p_r: float) -> tuple[np.ndarray, bool]:
         """Computed force F_C = A_P Δp [N] and whether the solve succeeded."""
         dp, ok = self.simulate_dp(alpha_v, p_r)
         return self.damper.piston_area * dp, ok
+
+
+#: Kernel tolerances of :class:`EffectsProblem` (the diagnosis's candidate search).
+EFFECTS_RTOL = 1e-6
+EFFECTS_ATOL = 1.0  # [Pa]
+#: Box of a window's (log α_V, log p_R) in its least-squares re-fits: the priors' boxes.
+INNER_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
+#: Box of a window's own flow coefficients, in units of the coefficient that alone carries its largest force at
+#: its largest flow (the flat prior's upper end; the lower end a thousandth of the scale, far below any effect
+#: on the force, keeps the log finite).
+FLOW_BOX = (1e-3, 100.0)
+
+
+@dataclass(frozen=True, eq=False)
+class EffectsProblem:
+    """One window bound to the damper and the record's whole input, for models with effects.
+
+    ``simulate_force(alpha_v, p_r, effects)`` solves eq. (7) with any effects (the composed kernel) from the
+    window's start. The start state: with ``step_force`` (a settled start: the measured force before the step),
+    Δp0 is solved so that the model's force with every effect equals it (friction, offsets... included); without
+    it, Δp0 = ``dp0`` [Pa] is given (a window that starts in motion; its value is a parameter of the fit).
+
+    Attributes
+    ----------
+    segment_id : str
+    time, force : ndarray, shape (n_times,)
+        Absolute sample times [s] (the first at or after ``t_step``) and measured force [N]. Read-only.
+    t_step : float
+        Start of the window [s].
+    step_force : float or None
+        Measured force at the start [N] of a settled start, else None.
+    dp0 : float
+        Δp at the start [Pa] when there is no step force (ignored otherwise).
+    drive : PiecewisePolynomial
+        The record's measured displacement from its start [m].
+    damper : DamperConstants
+    flow : FlowCoefficients
+    rtol, atol : float
+        Kernel tolerances [-], [Pa].
+    max_steps : int or None
+        Accepted steps after which a solve fails (None: the kernel's default); the diagnosis caps its candidate
+        search this way.
+    free_flow : bool
+        The flow coefficients are the window's own parameters (no stage 1), fitted with α_V and p_R.
+
+    The window's own parameters x (:meth:`inner_box`, :meth:`simulate_inner`): (log α_V, log p_R); for a window
+    that starts in motion also s0, the start force over A_P in units of :attr:`p_scale`; without stage 1 also the
+    logs of the four flow coefficients.
+    """
+
+    segment_id: str
+    time: np.ndarray
+    force: np.ndarray
+    t_step: float
+    step_force: float | None
+    dp0: float
+    drive: PiecewisePolynomial
+    damper: DamperConstants
+    flow: FlowCoefficients
+    rtol: float = EFFECTS_RTOL
+    atol: float = EFFECTS_ATOL
+    max_steps: int | None = None
+    free_flow: bool = False
+    _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        freeze_arrays(self, ("time", "force"))
+        object.__setattr__(self, "_flow4", self.flow.as_array())
+        if self.time.size == 0 or self.time.shape != self.force.shape:
+            raise SettingsError(f"{self.segment_id}: time and force must be non-empty and of equal length")
+        if not (self.drive.start <= self.t_step <= self.time[0]):
+            raise SettingsError(f"{self.segment_id}: the input must start at or before the window, and the samples "
+                                "at or after its start")
+        area = self.damper.piston_area
+        object.__setattr__(self, "p_scale", max(float(np.max(np.abs(self.force))) / area, 1.0))
+        q = area * np.abs(self.drive.velocity(self.time))
+        qmax = max(float(np.quantile(q, 0.99)), 1e-12)
+        object.__setattr__(self, "flow_scales", np.array([self.p_scale / qmax, self.p_scale / qmax**2] * 2))
+
+    @classmethod
+    def from_window(cls, window, damper: DamperConstants, flow: FlowCoefficients | None, **kw) -> EffectsProblem:
+        """Build from a :class:`bayesdamper.io.windows.Window` (its step force when it starts settled; ``flow``
+        None: the flow coefficients are the window's own parameters)."""
+        step_force = float(window.dp0) * damper.piston_area if window.starts_settled else None
+        free = flow is None
+        flow = flow if flow is not None else FlowCoefficients(1.0, 1.0, 1.0, 1.0)
+        return cls(window.id, window.time, window.force, float(window.t_step), step_force, float(window.dp0),
+                   window.drive, damper, flow, free_flow=free, **kw)
+
+    # ------------------------------------------------------------------ the window's own parameters
+    @property
+    def free_start(self) -> bool:
+        """The force at the start is a parameter of the window (it starts in motion)."""
+        return self.step_force is None
+
+    def inner_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box of the window's own parameters x (class docstring)."""
+        lo, hi = list(INNER_BOX[0]), list(INNER_BOX[1])
+        if self.free_start:
+            f_lo, f_hi = float(np.min(self.force)), float(np.max(self.force))
+            span = max(f_hi - f_lo, 1e-6 * self.p_scale * self.damper.piston_area)
+            scale = self.p_scale * self.damper.piston_area
+            lo.append((f_lo - span) / scale)
+            hi.append((f_hi + span) / scale)
+        if self.free_flow:
+            lo += list(np.log(FLOW_BOX[0] * self.flow_scales))
+            hi += list(np.log(FLOW_BOX[1] * self.flow_scales))
+        return np.array(lo), np.array(hi)
+
+    def inner_start(self, alpha_v: float, p_r: float, start_force: float | None = None,
+                    flow4: np.ndarray | None = None) -> np.ndarray:
+        """x of given α_V [-], p_R [Pa], start force [N] and flow coefficients (clipped into the box)."""
+        x = [math.log(alpha_v), math.log(p_r)]
+        if self.free_start:
+            f0 = float(np.mean(self.force[:3])) if start_force is None else float(start_force)
+            x.append(f0 / (self.p_scale * self.damper.piston_area))
+        if self.free_flow:
+            c = np.asarray(flow4 if flow4 is not None else 0.5 * self.flow_scales, dtype=float)
+            x += list(np.log(np.maximum(c, FLOW_BOX[0] * self.flow_scales)))
+        lo, hi = self.inner_box()
+        return np.clip(np.array(x), lo + 1e-9, hi - 1e-9)
+
+    def unpack_inner(self, x: np.ndarray) -> dict:
+        """The physical values of x: ``alpha_V`` [-], ``p_R_Pa`` [Pa], ``start_force_N`` [N] and ``flow`` (4,)."""
+        k = 2
+        out = {"alpha_V": math.exp(x[0]), "p_R_Pa": math.exp(x[1])}
+        if self.free_start:
+            out["start_force_N"] = float(x[k]) * self.p_scale * self.damper.piston_area
+            k += 1
+        if self.free_flow:
+            out["flow"] = np.exp(np.asarray(x[k:k + 4], dtype=float))
+        return out
+
+    def simulate_inner(self, x: np.ndarray, effects: ComposedEffects,
+                       flow: FlowCoefficients | None = None) -> tuple[np.ndarray, bool]:
+        """Computed force [N] at the window's own parameters ``x`` with ``effects`` (``flow`` replaces the fixed
+        flow coefficients of a window without its own)."""
+        v = self.unpack_inner(x)
+        if self.free_flow:
+            flow4 = v["flow"]
+        else:
+            flow4 = (flow if flow is not None else self.flow).as_array()
+        drive, v_prev = self._input(effects)
+        start = v["start_force_N"] if self.free_start else self.step_force
+        if not (math.isfinite(start) and np.all(np.isfinite(flow4))):
+            return np.full(self.time.shape, np.nan), False
+        force, status = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
+                                       np.ascontiguousarray(flow4, dtype=float), v["alpha_V"], v["p_R_Pa"],
+                                       self.rtol, self.atol, from_force=True, max_steps=self.max_steps)
+        return force, status == 0
+
+    def _input(self, comp: ComposedEffects) -> tuple[PiecewisePolynomial, float]:
+        key = (comp.names, comp.values.tobytes())
+        hit = self._cache.get("input")
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        drive = comp.transform_input(self.drive).cover(self.t_step, float(self.time[-1]))
+        out = (drive, drive.velocity_before(self.t_step) if self.step_force is not None
+               else float(drive.velocity(self.t_step)))  # in motion: the steady state at the start's velocity
+        self._cache["input"] = (key, out)
+        return out
+
+    def simulate_force(self, alpha_v: float, p_r: float, effects: ComposedEffects) -> tuple[np.ndarray, bool]:
+        """Computed force F_C [N] at the sample times and whether the solve succeeded."""
+        drive, v_prev = self._input(effects)
+        settled = self.step_force is not None
+        start = self.step_force if settled else self.dp0
+        if not math.isfinite(start):
+            return np.full(self.time.shape, np.nan), False
+        force, status = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
+                                       self._flow4, float(alpha_v), float(p_r), self.rtol, self.atol,
+                                       from_force=settled, max_steps=self.max_steps)
+        return force, status == 0

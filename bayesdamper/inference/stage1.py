@@ -7,6 +7,11 @@ least-squares problem with design matrix ``[Q, Q^2]``. The covariance of the est
 ``s^2 (X^T X)^-1`` with ``s^2`` the residual variance on ``n - 2`` degrees of freedom, so the standard
 errors include the scatter of the plateaus about the curve (model error included), not only the
 within-plateau noise.
+
+Eq. (8) needs C_L, C_Q >= 0. Plateaus that eq. (4) cannot fit with both non-negative (a load cell that was not
+zeroed shifts one direction's forces up and the other's down; a force that saturates with speed bends the curve
+the wrong way) are fitted with the offending coefficient at 0 and the fit says so (``constrained``): a finding for
+the diagnosis, which tests the effects that would explain it, not a reason to refuse the data.
 """
 
 from __future__ import annotations
@@ -45,6 +50,8 @@ class DirectionFit:
         Standard deviation of the plateau pressure drops about the fitted curve [Pa].
     flow_rate, pressure_drop : ndarray, shape (n,)
         The plateau points Q [m^3/s] and Δp [Pa] (both positive magnitudes).
+    constrained : tuple of str
+        Coefficients (``"C_L"``, ``"C_Q"``) the unconstrained least squares made negative, held at 0.
     """
 
     direction: int
@@ -54,6 +61,7 @@ class DirectionFit:
     residual_std: float
     flow_rate: np.ndarray
     pressure_drop: np.ndarray
+    constrained: tuple[str, ...] = ()
 
     @property
     def n(self) -> int:
@@ -92,6 +100,11 @@ class StaticFit:
         cov[2:, 2:] = self.backward.covariance
         return cov
 
+    @property
+    def constrained(self) -> list[str]:
+        """Coefficients held at 0 because the plateaus made them negative (e.g. ``["C_L21"]``)."""
+        return [f"{n}{lab}" for f, lab in ((self.forward, "12"), (self.backward, "21")) for n in f.constrained]
+
     def intervals(self, credible_mass: float = 0.9) -> dict[str, dict[str, float]]:
         """Equal-tailed intervals of each coefficient (Student-t on the residual degrees of freedom)."""
         out = {}
@@ -100,7 +113,7 @@ class StaticFit:
         dofs = (self.forward.n - 2,) * 2 + (self.backward.n - 2,) * 2
         for name, m, s, dof in zip(STATIC_NAMES, est, se, dofs, strict=True):
             q = stats.t.ppf(0.5 + credible_mass / 2, max(dof, 1))
-            out[name] = {"median": float(m), "lo": float(m - q * s), "hi": float(m + q * s)}
+            out[name] = {"median": float(m), "lo": float(max(m - q * s, 0.0)), "hi": float(m + q * s)}
         return out
 
     def sample(self, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -136,13 +149,22 @@ def fit_direction(flow_rate: np.ndarray, pressure_drop: np.ndarray, direction: i
     scale = np.abs(x).max(axis=0)
     xs = x / scale
     coef_s, *_ = np.linalg.lstsq(xs, dp, rcond=None)
+    constrained: tuple[str, ...] = ()
+    if np.any(coef_s < 0):  # eq. (8) needs both >= 0: the best one-term fit holds the other at 0 (NNLS)
+        from scipy.optimize import nnls
+
+        coef_s, _ = nnls(xs, dp)
+        constrained = tuple(n for n, c in zip(("C_L", "C_Q"), coef_s, strict=True) if c == 0.0)
+        if np.all(coef_s == 0.0):
+            raise DataError(f"{source}: the plateau forces in direction {direction:+d} do not rise with speed: "
+                            "eq. (4) cannot describe them (is the force channel's sign or unit right?)")
     resid = dp - xs @ coef_s
     dof = q.size - 2
     s2 = float(resid @ resid) / dof if dof > 0 else float("nan")
-    cov_s = s2 * np.linalg.inv(xs.T @ xs)
+    cov_s = s2 * np.linalg.inv(xs.T @ xs)  # held coefficients keep the full fit's spread (conservative)
     coef = coef_s / scale
     cov = cov_s / np.outer(scale, scale)
-    return DirectionFit(direction, float(coef[0]), float(coef[1]), cov, float(np.sqrt(s2)), q, dp)
+    return DirectionFit(direction, float(coef[0]), float(coef[1]), cov, float(np.sqrt(s2)), q, dp, constrained)
 
 
 def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:

@@ -1,7 +1,8 @@
-"""Stage 2 for every transient: Nelder-Mead start, emcee posterior, summary and stored NetCDF.
+"""What every window's posterior shares: the settings, the seeds, the summaries and shape report, the stored
+result, and the conditional posterior of (α_V, p_R) (the paper's stage 2).
 
-Transients are independent tasks; :func:`identify_transient` is the unit of work sent to worker
-processes. Each task derives its seed from the run seed and the segment id, so results do not depend
+Windows are independent tasks; :func:`bayesdamper.inference.identify.identify_window` is the unit of work sent to
+worker processes. Each task derives its seed from the run seed and the window id, so results do not depend
 on the number of workers or the order tasks finish in.
 """
 
@@ -19,7 +20,7 @@ from bayesdamper.inference import posterior as post
 from bayesdamper.inference.likelihood import LogPosterior, cost_j, make_noise_model
 from bayesdamper.inference.pointfit import fit_point
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, ParameterSpace
-from bayesdamper.inference.problem import TransientProblem
+from bayesdamper.inference.problem import WindowProblem
 from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
 
 #: Posterior draws stored per chain are thinned to about this many per τ (half a τ apart).
@@ -33,7 +34,7 @@ N_STATIC_DRAWS = 8
 STATIC_NEGLIGIBLE_RATIO = 0.3
 
 
-def static_sensitivity(problem: TransientProblem, space: ParameterSpace, static_draws: np.ndarray,
+def static_sensitivity(problem: WindowProblem, space: ParameterSpace, static_draws: np.ndarray,
                        start: tuple[float, float], posterior_sd_log: np.ndarray) -> dict:
     """How far the eq. (9) optimum moves when the flow coefficients are redrawn from stage 1.
 
@@ -59,7 +60,7 @@ def static_sensitivity(problem: TransientProblem, space: ParameterSpace, static_
 
 
 @dataclass
-class TransientResult:
+class WindowResult:
     """What one transient's stage 2 returns to the driver (plain arrays, picklable).
 
     Attributes
@@ -194,25 +195,20 @@ def shape_report(samples: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> d
             "at_prior_bound": bool(np.any(at_lo[:2] > 0.05) or np.any(at_hi[:2] > 0.05))}
 
 
-def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficients,
-                       settings: StageTwoSettings, seed: int, out_nc: Path | None = None,
-                       provenance: dict | None = None, progress=None,
-                       static_draws: np.ndarray | None = None, problem=None, prior=None) -> TransientResult:
-    """Point fit and posterior of one transient.
+def identify_conditional(transient, damper: DamperConstants, flow: FlowCoefficients,
+                         settings: StageTwoSettings, seed: int, out_nc: Path | None = None,
+                         provenance: dict | None = None, progress=None,
+                         static_draws: np.ndarray | None = None, problem=None) -> WindowResult:
+    """Point fit and posterior of (α_V, p_R) of one window conditional on ``flow`` and the start's Δp (the
+    paper's stage 2; :func:`bayesdamper.inference.identify.identify_window` is the entry point).
 
-    With ``prior`` (a :class:`~bayesdamper.inference.joint.StageOnePrior`) and ``settings.propagate``, the
-    posterior is the joint one of :mod:`bayesdamper.inference.joint` (Δp at the step and the flow coefficients
-    sampled with α_V and p_R). Otherwise it is conditional on ``flow`` and the step's Δp.
-
-    ``problem`` replaces the default eq. (7) :class:`TransientProblem` (e.g. a model with effects; it
-    needs ``simulate_force(alpha_v, p_r)``, ``force``, ``time`` and ``dp0``); such a posterior is conditional.
+    ``problem`` replaces the default eq. (7) :class:`WindowProblem` (e.g. a model with effects; it
+    needs ``simulate_force(alpha_v, p_r)``, ``force``, ``time`` and ``dp0``).
 
     If ``out_nc`` is given, the posterior is written there (atomically) with its provenance.
     """
-    if problem is None and prior is not None and settings.propagate:
-        return _identify_joint(transient, damper, flow, settings, seed, out_nc, provenance, progress, prior)
     t0 = time.perf_counter()
-    problem = problem if problem is not None else TransientProblem.from_transient(transient, damper, flow)
+    problem = problem if problem is not None else WindowProblem.from_window(transient, damper, flow)
     space = settings.space()
     noise = make_noise_model(settings.noise_model)
     logpost = LogPosterior(problem, noise, space)
@@ -266,105 +262,5 @@ def identify_transient(transient, damper: DamperConstants, flow: FlowCoefficient
                                        {"time_s": problem.time, "dp0_Pa": np.array([problem.dp0]),
                                         "band_N": band, "ls_force_N": ls_force}, attrs)
         post.write_netcdf(idata, out_nc)
-    return TransientResult(entry, space.names, phys_ch, np.array(problem.time), np.array(problem.force),
+    return WindowResult(entry, space.names, phys_ch, np.array(problem.time), np.array(problem.force),
                            band, ls_force)
-
-
-#: Sampler of the joint posterior: differential evolution with independence moves from the Gauss-Newton
-#: approximation at the MAP (as whole records; the 7-parameter posterior of a transient that determines α_V
-#: and p_R is close to Gaussian in the sampled variables), walkers 2 × ndim + 2, checks every 100 steps.
-JOINT_MOVE = "de+laplace"
-JOINT_CHECK_EVERY = 100
-#: Distance [Gauss-Newton sd] from the MAP to a prior bound of log α_V or log p_R below which the Gaussian
-#: approximation is cut by the box (a bound within 3 sd cuts >= 0.13 % of it; a ridge that runs into a bound far
-#: more) and the independence moves are dropped for plain DE: on rig-A's low-speed reversals (MAP at the 10 MPa
-#: bound) they were accepted 8 % of the time and τ was 120 steps, DE alone 26 % and 65 steps.
-JOINT_BOUND_SDS = 3.0
-
-
-def _identify_joint(transient, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
-                    prior) -> TransientResult:
-    from dataclasses import replace
-
-    from bayesdamper.inference import cut, joint
-
-    t0 = time.perf_counter()
-    code = {"plateau": joint.PLATEAU, "ar1": joint.AR1, "white": joint.WHITE}[settings.noise_model]
-    jp = joint.JointProblem.from_transient(transient, damper, prior, code)
-    space = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
-    logpost = joint.JointLogPosterior(jp, space)
-    # the paper's point estimate (Nelder-Mead on α_V, p_R with stage-1 flow and the mean step force): reported
-    # as "ls" and the start of the MAP fit
-    cond = TransientProblem.from_transient(transient, damper, flow)
-    pf = fit_point(cond, ParameterSpace.default((), settings.alpha_v_bounds, settings.p_r_bounds))
-    start = [np.log(pf.alpha_v), np.log(pf.p_r), jp.dp0_estimate, *prior.mean]
-    if code == joint.AR1:
-        start.append(float(np.clip(prior.noise.phi, space.lower[-1] + 0.01, space.upper[-1] - 0.01)))
-    seed_t = task_seed(seed, transient.id)
-    if settings.coupling == "cut":  # sample θ2 | θ̂1, then carry θ1's own uncertainty in (inference/cut.py)
-        theta1 = np.r_[jp.dp0_estimate, prior.mean]
-        fit = cut.fit_conditional(logpost, theta1, np.r_[start[:2], start[7:]])
-        target = cut.ConditionalLogPosterior(logpost, theta1)
-        lower, upper, cov = target.lower, target.upper, fit.cov2
-        x_start = np.clip(fit.x2, lower + 1e-3 * (upper - lower), upper - 1e-3 * (upper - lower))
-        x_map = target.full(x_start)[0]
-    else:
-        x_map, cov = joint.fit_map(logpost, np.array(start))
-        x_map = space.clip_inside(x_map, margin=1e-3)
-        target, lower, upper, x_start = logpost, space.lower, space.upper, x_map
-    gap = np.minimum(x_map[:2] - space.lower[:2], space.upper[:2] - x_map[:2])
-    near_bound = cov is None or bool(np.any(gap < JOINT_BOUND_SDS * np.sqrt(np.diag(cov))[:2]))
-    sampler = replace(settings.sampler, n_walkers=max(settings.sampler.n_walkers, 2 * x_start.size + 2),
-                      **({} if near_bound else {"move": JOINT_MOVE, "check_every": JOINT_CHECK_EVERY}))
-    res = sample_posterior(target, x_start, lower, upper, sampler, seed_t, progress, scale=cov)
-    if settings.coupling == "cut":
-        res = cut.propagate(res, logpost, theta1, fit, int(np.random.SeedSequence([seed_t, 1]).generate_state(1)[0]))
-    flat = res.flat()
-    phys = space.to_physical(flat)
-    rng = np.random.default_rng(seed_t)
-    idx = rng.choice(len(flat), size=min(N_PREDICTIVE, len(flat)), replace=False)
-    sims = [f for f, good in (jp.simulate_window(th) for th in flat[idx]) if good]
-    band = predictive_band(sims, settings.credible_mass, jp.time.size)
-    f_map, ok_map = jp.simulate_window(x_map)
-    ls_force, _ = cond.simulate_force(pf.alpha_v, pf.p_r)
-    entry = {
-        "id": transient.id, "test": transient.test, "kind": transient.kind,
-        "direction": int(transient.direction), "velocity_m_s": float(transient.velocity),
-        "t_start_s": float(transient.t_step),
-        "alpha_V": summarise(phys[:, 0], settings.credible_mass),
-        "p_R_Pa": summarise(phys[:, 1], settings.credible_mass),
-        "dp0_Pa": summarise(phys[:, 2], settings.credible_mass),
-        "flow": {n: summarise(phys[:, 3 + k], settings.credible_mass) for k, n in enumerate(joint.FLOW_NAMES)},
-        "ls": {"alpha_V": pf.alpha_v, "p_R_Pa": pf.p_r, "J": pf.cost},
-        # J of the posterior-predictive median force (the curve drawn through the data) and at the MAP
-        "J": cost_j(band[1], jp.force) if sims else float("inf"),
-        "J_map": cost_j(f_map, jp.force) if ok_map else float("inf"),
-        **sampling_summary(res, space.names, phys),
-        "shape": shape_report(flat, space.lower, space.upper),
-        "seed": seed_t, "propagated": True, "coupling": settings.coupling,
-        "noise": prior.noise.as_dict() | {"model": settings.noise_model},
-        "dp0_estimate_Pa": jp.dp0_estimate, "n_pre_samples": int(jp.pre_force.size),
-        # σ_w / σ_e at the MAP: how much wider than the noise alone the window's scale (noise + model error)
-        # makes the intervals
-        "window_scale_ratio": logpost.window_scale(x_map, prior.noise.phi) / prior.noise.sigma_e,
-        "sampler": sampler.as_dict(),
-    }
-    if code == joint.AR1:
-        entry["phi"] = summarise(phys[:, -1], settings.credible_mass)
-    phys_ch, lp, thin = thinned_chains(res, space)
-    entry["wall_s"] = time.perf_counter() - t0
-    if out_nc is not None:
-        attrs = dict(provenance or {})
-        attrs.update({"segment_id": transient.id, "seed": seed_t, "run_seed": seed,
-                      "settings": settings.as_dict(), "static_flow": asdict(flow),
-                      "stage1_prior": {"mean": prior.mean.tolist(), "cov": prior.cov.tolist(),
-                                       "dof": prior.dof.tolist()},
-                      "summary": {k: entry[k] for k in ("alpha_V", "p_R_Pa", "J", "rhat_max",
-                                                          "ess_bulk_min", "converged", "tau")},
-                      "entry": entry, "thin": thin, "chains_are": "walkers, ensemble-major "
-                      f"({sampler.n_ensembles} ensembles x {sampler.n_walkers} walkers)"})
-        idata = post.to_inference_data(phys_ch, space.names, lp, {"force_N": jp.force},
-                                       {"time_s": jp.time, "dp0_Pa": np.array([jp.dp0_estimate]),
-                                        "band_N": band, "ls_force_N": ls_force}, attrs)
-        post.write_netcdf(idata, out_nc)
-    return TransientResult(entry, space.names, phys_ch, np.array(jp.time), np.array(jp.force), band, ls_force)

@@ -7,7 +7,8 @@ A data set is a folder holding
   ``liquid_bulk_modulus_Pa``, optional ``name``) and an optional ``[flow]`` table of known flow
   coefficients of eq. (4) (``C_L12``, ``C_Q12``, ``C_L21``, ``C_Q21``);
 * one CSV file per test, with a header naming the columns ``time_s``, ``displacement_m`` and
-  ``force_N`` (any order; other columns are ignored), sampled at a constant rate, in SI units.
+  ``force_N`` (any order; other columns are ignored but an optional measured velocity ``velocity_m_s``),
+  sampled at a constant rate, in SI units.
 
 Every problem found raises :class:`~bayesdamper.core.errors.DataError` with a one-line message
 ``"<path>: <problem>"``. Nothing downstream re-reads the files: the returned :class:`Dataset`
@@ -42,6 +43,8 @@ DAMPER_FILE = "damper.toml"
 
 #: Required CSV columns, in the order the arrays are returned.
 COLUMNS = ("time_s", "displacement_m", "force_N")
+#: Optional CSV column: a measured piston velocity [m/s] (used by the input's reconstruction where it helps).
+VELOCITY_COLUMN = "velocity_m_s"
 
 #: Relative deviation of one sampling interval from the median interval still accepted as jitter [-].
 SAMPLE_RATE_JITTER = 0.05
@@ -101,6 +104,8 @@ class TestRecord:
         Measured damper force F_D [N], positive when chamber 1 is at the higher pressure. Read-only.
     sha256 : str
         SHA-256 of the file's bytes (hex).
+    velocity : ndarray, shape (n_samples,), or None
+        Measured piston velocity [m/s] (column ``velocity_m_s``), if the file has one. Read-only.
     """
 
     __test__ = False  # not a pytest test class despite its name
@@ -111,6 +116,7 @@ class TestRecord:
     displacement: np.ndarray
     force: np.ndarray
     sha256: str
+    velocity: np.ndarray | None = None
 
     @property
     def sample_rate(self) -> float:
@@ -426,7 +432,23 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
         displacement=_readonly(y),
         force=_readonly(force),
         sha256=sha,
+        velocity=_read_velocity(path, lines, time.size),
     )
+
+
+def _read_velocity(path: Path, lines: list[str], n: int) -> np.ndarray | None:
+    """The optional measured velocity column [m/s], or None; a column that is not all finite numbers is an error."""
+    names = [c.strip().strip('"').strip("'").strip() for c in lines[0].split(",")]
+    if VELOCITY_COLUMN not in names:
+        return None
+    try:
+        v = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=(names.index(VELOCITY_COLUMN),), ndmin=1,
+                       dtype=float)
+    except (ValueError, TypeError, OverflowError, IndexError):
+        raise DataError(f"{path}: column {VELOCITY_COLUMN} holds something that is not a number") from None
+    if v.size != n or not np.all(np.isfinite(v)):
+        raise DataError(f"{path}: column {VELOCITY_COLUMN} must hold a finite number in every row")
+    return _readonly(v)
 
 
 def _csv_files(folder: Path) -> list[Path]:

@@ -77,6 +77,10 @@ FLAT_FORCE_RELATIVE = 1e-3
 #: Clipped: at least CLIP_FRACTION of the samples (and CLIP_MIN_SAMPLES) exactly at the channel's max or
 #: min, in CLIP_MIN_RUNS or more interior runs of CLIP_RUN samples or more (a saturated sensor or ADC).
 CLIP_FRACTION, CLIP_MIN_SAMPLES, CLIP_MIN_RUNS, CLIP_RUN = 0.01, 5, 2, 2
+#: ... and the limit holds more than this many times the samples of the next level: the extreme level of a
+#: quantised, noisy channel is the tail of its noise and holds no more than the level next to it (a dry-friction
+#: plateau read in 3 N steps); a saturated channel piles there every sample that would have passed the limit.
+CLIP_SPIKE = 3.0
 #: Largest plausible piston speed [m/s]; hydraulic damper rigs stay below 1-2 m/s.
 MAX_VELOCITY = 10.0
 
@@ -250,13 +254,19 @@ def _classify(record: TestRecord, a: _Analysis) -> RecordKind:
 
 
 def _clipped(x: np.ndarray) -> tuple[float, int, int] | None:
-    """(limit, samples at it, runs) if ``x`` sits at its max or min in several interior runs."""
+    """(limit, samples at it, runs) if ``x`` sits at its max or min in several interior runs, and the limit holds
+    more than :data:`CLIP_SPIKE` times the samples of the level next to it (a quantised channel's extreme level is
+    the tail of its noise, a saturated one's every sample that would have passed it)."""
     need = max(CLIP_MIN_SAMPLES, math.ceil(CLIP_FRACTION * x.size))
-    for limit in (float(np.max(x)), float(np.min(x))):
+    levels = np.unique(x)
+    for limit, side in ((float(np.max(x)), -1), (float(np.min(x)), 1)):
         runs = [(a, b) for s, a, b in _runs((x == limit).astype(int))
                 if s and b - a >= CLIP_RUN and a > 0 and b < x.size]  # rest at an end is not clipping
         count = sum(b - a for a, b in runs)
-        if len(runs) >= CLIP_MIN_RUNS and count >= need:
+        if len(runs) < CLIP_MIN_RUNS or count < need:
+            continue
+        nxt = levels[-2] if side < 0 else levels[1] if levels.size > 1 else limit
+        if int(np.count_nonzero(x == limit)) > CLIP_SPIKE * max(int(np.count_nonzero(x == nxt)), 1):
             return limit, count, len(runs)
     return None
 

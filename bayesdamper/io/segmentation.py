@@ -41,7 +41,9 @@ import numpy as np
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.core.params import DamperConstants
 from bayesdamper.io.dataset import Dataset, TestRecord
-from bayesdamper.io.segments import Plateau, SegmentedRecord, StepKind, Transient, VelocityStep, _readonly
+from bayesdamper.io.segments import Plateau, SegmentedRecord, StepKind, VelocityStep, _readonly
+from bayesdamper.io.windows import Window
+from bayesdamper.physics.excitation import PiecewisePolynomial
 
 __all__ = [
     "CORNER_MARGIN",
@@ -52,7 +54,7 @@ __all__ = [
     "STEP_FORCE_WINDOW",
     "Plateau",
     "SegmentedRecord",
-    "Transient",
+    "Window",
     "VelocityStep",
     "segment_dataset",
     "segment_record",
@@ -310,6 +312,7 @@ def segment_record(
 
     transients = []
     eps = 1e-9 * float(t[1] - t[0])
+    drive = PiecewisePolynomial.from_knots(knot_t, knot_y)
     for step, kk, (pre_t, pre_f) in zip(steps, step_knots, pre_samples, strict=True):
         t_end = step.time + tmax
         if t_end > t[-1] + eps:
@@ -324,9 +327,8 @@ def segment_record(
                 f"{knot_t[kk + 1] - step.time:.3f} s later)"
             )
         win = (t >= step.time) & (t <= t_end + eps)
-        seg = segments[kk]
         transients.append(
-            Transient(
+            Window(
                 id=f"{record.name}_s{step.index}",
                 test=record.name,
                 index=step.index,
@@ -338,8 +340,7 @@ def segment_record(
                 displacement=_readonly(y[win]),
                 force=_readonly(force[win]),
                 dp0=step.force / area,
-                knot_times=_readonly([step.time, t_end]),
-                knot_displacements=_readonly([knot_y[kk], float(seg.at(t_end))]),
+                drive=drive,
                 pre_time=_readonly(pre_t),
                 pre_force=_readonly(pre_f),
             )

@@ -1,16 +1,18 @@
 """What segmentation produces: velocity steps, transients, plateaus and the segmented record.
 
-Immutable containers with read-only arrays; :mod:`bayesdamper.io.segmentation` builds them from a record.
+Immutable containers with read-only arrays; :mod:`bayesdamper.io.segmentation` builds them from a record. A
+transient is a :class:`~bayesdamper.io.windows.Window` (the unit of identification of every record).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from bayesdamper.io.dataset import TestRecord
+from bayesdamper.io.windows import Window
 
 StepKind = Literal["initial", "reversal"]
 
@@ -48,66 +50,6 @@ class VelocityStep:
     kind: StepKind
     direction: int
     force: float
-
-
-@dataclass(frozen=True, eq=False)
-class Transient:
-    """The force transient after one velocity step: the data of eq. (9).
-
-    Attributes
-    ----------
-    id : str
-        File-name-safe identifier ``f"{test}_s{index}"``.
-    test : str
-        Name of the record.
-    index : int
-        Index of the step in the record.
-    kind : {"initial", "reversal"}
-        Kind of the step.
-    direction : {1, -1}
-        Sign of the velocity after the step (+1: Δp > 0, flow CH1 -> CH2).
-    velocity : float
-        Piston speed |V_P| after the step [m/s].
-    t_step : float
-        Step time [s]; the window is ``[t_step, t_step + tmax]``.
-    time : ndarray, shape (n_times,)
-        Absolute sample times in the window [s]; ``time[0] >= t_step``. Read-only.
-    displacement : ndarray, shape (n_times,)
-        Measured displacement y_P [m]. Read-only.
-    force : ndarray, shape (n_times,)
-        Measured damper force F_D,E [N]. Read-only.
-    dp0 : float
-        Pressure difference at the step, step force / A_P [Pa]; the initial condition Δp(t_step).
-    knot_times : ndarray, shape (n_knots,)
-        Knots of the fitted piecewise-linear displacement inside the window, absolute times [s];
-        the first is ``t_step``, the last ``t_step + tmax``. Read-only.
-    knot_displacements : ndarray, shape (n_knots,)
-        Fitted displacement at the knots [m]. Read-only.
-    pre_time, pre_force : ndarray, shape (n_pre,)
-        The samples of the last ``STEP_FORCE_WINDOW`` before the step (those ``dp0`` is the mean of):
-        times [s] and measured force [N]. Read-only; empty if not given.
-    """
-
-    id: str
-    test: str
-    index: int
-    kind: StepKind
-    direction: int
-    velocity: float
-    t_step: float
-    time: np.ndarray
-    displacement: np.ndarray
-    force: np.ndarray
-    dp0: float
-    knot_times: np.ndarray
-    knot_displacements: np.ndarray
-    pre_time: np.ndarray = field(default_factory=lambda: _readonly([]))
-    pre_force: np.ndarray = field(default_factory=lambda: _readonly([]))
-
-    @property
-    def duration(self) -> float:
-        """Window length ``knot_times[-1] - t_step`` [s]."""
-        return float(self.knot_times[-1] - self.t_step)
 
 
 @dataclass(frozen=True)
@@ -160,8 +102,8 @@ class SegmentedRecord:
     record : TestRecord
         The source record.
     steps : tuple of VelocityStep
-    transients : tuple of Transient
-        One per step, same order.
+    transients : tuple of Window
+        One per step, same order (kind ``"initial"`` or ``"reversal"``).
     plateaus : tuple of Plateau
         One per ramp.
     knot_times : ndarray, shape (n_knots,)
@@ -176,7 +118,7 @@ class SegmentedRecord:
 
     record: TestRecord
     steps: tuple[VelocityStep, ...]
-    transients: tuple[Transient, ...]
+    transients: tuple[Window, ...]
     plateaus: tuple[Plateau, ...]
     knot_times: np.ndarray
     knot_displacements: np.ndarray

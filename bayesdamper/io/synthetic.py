@@ -156,14 +156,15 @@ def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: D
                           accumulator_conductance: float = TWO_STATE_ACCUMULATOR) -> np.ndarray:
     """Measured force [N] at ``t`` [s] of the whole record with effects injected into the base model.
 
-    ``model="eq7"``: :func:`bayesdamper.physics.with_effects.simulate_augmented`; ``"two-state"``:
-    :func:`bayesdamper.physics.augmented.simulate_two_state_augmented` (scipy Radau, slower). From rest at t = 0.
+    ``model="eq7"``: eq. (7) with the effects; ``"two-state"``: the two-state model eq. (1), eq. (7) composed
+    with the ``accumulator`` effect charged to p_R (:func:`bayesdamper.physics.with_effects.two_state_effects`).
+    Both on the composed kernel (:func:`bayesdamper.physics.with_effects.simulate_effects`), from rest at t = 0.
     """
-    from bayesdamper.physics.with_effects import simulate_augmented, simulate_two_state_augmented
+    from bayesdamper.physics.with_effects import simulate_effects, two_state_effects
 
     if model == "eq7":
-        return simulate_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
+        return simulate_effects(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0)
     if model == "two-state":
-        return simulate_two_state_augmented(t, excitation, damper, flow, dynamic, effects, dp0=0.0, t0=0.0,
-                                            accumulator_conductance=accumulator_conductance)
+        return simulate_effects(t, excitation, damper, flow, dynamic,
+                                two_state_effects(dynamic, effects, accumulator_conductance), dp0=0.0, t0=0.0)
     raise SettingsError(f"--model: unknown model {model!r}, choose eq7 or two-state")

@@ -11,7 +11,8 @@ is adding a module: nothing here names an effect.
 
 Order of evaluation at time t (the signals of :mod:`~bayesdamper.physics.effects.signals`):
 
-1. y_A, v_A from the piecewise-linear measured displacement; the displacement-path hooks in registry
+1. y_A, v_A, a_A from the measured displacement's polynomial pieces
+   (:class:`~bayesdamper.physics.excitation.PiecewisePolynomial`); the displacement-path hooks in registry
    order; the series compliance: y_P = y_D - c A_P Δp;
 2. Q_O(Δp) of eq. (8), then the flow-path hooks;
 3. absolute pressures from a ``pressures`` hook (at most one effect) with B(p_i) of eq. (3), else eq. (6);
@@ -45,6 +46,7 @@ from bayesdamper.core.errors import SettingsError
 from bayesdamper.physics import composed_template
 from bayesdamper.physics.effects import EFFECT_MODULES, complete_effects
 from bayesdamper.physics.effects import signals as _signals
+from bayesdamper.physics.excitation import PiecewisePolynomial
 
 __all__ = ["ComposedEffects", "compose", "kernel", "kernel_source", "layout", "solve_composed", "warm_up"]
 
@@ -78,13 +80,14 @@ class ComposedEffects:
         return {name: {p.name: float(v) for p, v in zip(EFFECT_MODULES[name].EFFECT.params, vals, strict=True)}
                 for name, vals in self._slices()}
 
-    def transform_knots(self, kt: np.ndarray, ky: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Apply the effects' knot transforms (``knots`` hooks, e.g. backlash) to the displacement knots."""
+    def transform_input(self, drive: PiecewisePolynomial) -> PiecewisePolynomial:
+        """Apply the effects' input transforms (``transform_input`` hooks, e.g. backlash) to the measured
+        displacement."""
         for name, p in self._slices():
             mod = EFFECT_MODULES[name]
-            if hasattr(mod, "knots"):
-                kt, ky = mod.knots(kt, ky, p)
-        return kt, ky
+            if hasattr(mod, "transform_input"):
+                drive = mod.transform_input(drive, p)
+        return drive
 
     def compliance(self) -> float:
         """Total series compliance [m/N] of the effects' ``compliance`` hooks."""
@@ -171,8 +174,8 @@ def kernel_source() -> str:
     lines = ["", "", "# " + "-" * 77 + " generated model half",
              "from bayesdamper.physics.compressibility import bulk_modulus_scalar as _bulk",
              "from bayesdamper.physics.orifice import orifice_flow as _orifice",
-             "from bayesdamper.physics.effects.signals import (DDP, DP, DP1, DP2, P1, P2, PRESSURE_FLOOR_PA, Q,",
-             "                                               QO, T, V1, V2, VA, VP, YA, YP)"]
+             "from bayesdamper.physics.effects.signals import (AA, DDP, DP, DP1, DP2, P1, P2, PRESSURE_FLOOR_PA,",
+             "                                               Q, QO, T, V1, V2, VA, VP, YA, YP)"]
     for alias, mod, _ in rows:
         lines.append(f"import {mod.__name__} as {alias}")
     lines += ["", "", "@njit(cache=True)",
@@ -186,11 +189,11 @@ def kernel_source() -> str:
                                                if has(rows[i][1], "force_acts") else ["return True"]))
     lines += ["    return False", "", "",
               "@njit(cache=True, error_model=\"numpy\")",
-              "def _rhs(t, s, ds, sig, prm, base, ts, ys, va, lay):",
-              "    ya = ys + va * (t - ts)",
+              "def _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay):",
               "    sig[T] = t",
               "    sig[YA] = ya",
               "    sig[VA] = va",
+              "    sig[AA] = aa",
               "    sig[YP] = ya",
               "    sig[VP] = va",
               "    for i in range(ds.shape[0]):",
@@ -262,6 +265,7 @@ def kernel_source() -> str:
               "    sig[T] = t0",
               "    sig[YA] = ya0",
               "    sig[VA] = v_prev",
+              "    sig[AA] = 0.0",
               "    sig[YP] = ya0",
               "    sig[VP] = v_prev",
               "    sig[DP] = dp0"]
@@ -335,14 +339,13 @@ def kernel():
     return module
 
 
-def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndarray, knot_y: np.ndarray,
-                   t0: float, dp0: float, v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float,
-                   rtol: float, atol: float, *, from_force: bool = False,
-                   max_steps: int | None = None) -> tuple[np.ndarray, int]:
+def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: PiecewisePolynomial, t0: float, dp0: float,
+                   v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float, rtol: float, atol: float, *,
+                   from_force: bool = False, max_steps: int | None = None) -> tuple[np.ndarray, int]:
     """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
 
-    ``knot_t``, ``knot_y`` are the measured displacement's knots, already through
-    :meth:`ComposedEffects.transform_knots`; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
+    ``drive`` is the measured displacement, already through :meth:`ComposedEffects.transform_input` and covering
+    ``[t0, t_out[-1]]``; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
     (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`); ``max_steps``:
     accepted steps after which the solve fails (None: ``composed_template.MAX_STEPS``).
@@ -353,8 +356,8 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, knot_t: np.ndar
                      damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
     if not (np.all(np.isfinite(base)) and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
         return np.full(np.shape(t_out), np.nan), 5
-    return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), np.ascontiguousarray(knot_t, dtype=float),
-                              np.ascontiguousarray(knot_y, dtype=float), float(t0), float(dp0), float(v_prev),
+    return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), drive.breaks, drive.coefs, drive.restart,
+                              float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
                               bool(from_force), composed.layout,
                               int(composed_template.MAX_STEPS if max_steps is None else max_steps))
@@ -367,6 +370,6 @@ def warm_up() -> None:
     """
     from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
 
-    t = np.array([0.0, 1.0])
-    solve_composed(compose({}), np.array([0.5]), t, np.array([0.0, 1e-3]), 0.0, 0.0, 0.0, RIG_A_DAMPER,
-                   PAPER_FLOW.as_array(), 40.0, 3.0e5, 1e-6, 1.0)
+    drive = PiecewisePolynomial.from_knots(np.array([0.0, 1.0]), np.array([0.0, 1e-3]))
+    solve_composed(compose({}), np.array([0.5]), drive, 0.0, 0.0, 0.0, RIG_A_DAMPER, PAPER_FLOW.as_array(), 40.0,
+                   3.0e5, 1e-6, 1.0)

@@ -2,7 +2,7 @@
 """The solver half of a composed kernel: :mod:`bayesdamper.physics.compose` appends the model half.
 
 This file is never imported on its own. :func:`bayesdamper.physics.compose.kernel` writes its text,
-followed by generated definitions of ``_n_states``, ``_force_needs_signals``, ``_rhs``, ``_force``,
+followed by generated definitions of ``_n_states``, ``_force_needs_signals``, ``_rhs_at``, ``_force``,
 ``_init`` and ``_atol`` calling the hooks of every registered effect, each only when the runtime layout
 ``lay`` marks it active, into a module of the kernel cache and imports that: numba compiles (and caches on
 disk) one kernel for every combination of effects, once per machine.
@@ -28,6 +28,7 @@ from bayesdamper.physics.rodas import (
     STATUS_NONFINITE,
     STATUS_OK,
     STATUS_STEP_UNDERFLOW,
+    STATUS_VOLUME,
     dense_coefficients,
     dense_value,
     predictive_step,
@@ -36,6 +37,8 @@ from bayesdamper.physics.rodas import (
     stage_time,
     step_factor,
 )
+from bayesdamper.physics.single_state import drive as _drive
+from bayesdamper.physics.single_state import next_restart as _next_restart
 
 #: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
@@ -98,15 +101,26 @@ def _err_norm(v, x, xn, sc_a, rtol):
 
 
 @njit(cache=True, error_model="numpy")
-def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay, max_steps):
+def _rhs(t, s, ds, sig, prm, base, brk, coef, seg, lay):
+    """The model's right-hand side at ``t`` with the input's polynomial pieces (``seg``: the restart interval's
+    first and end piece and the piece last used, updated)."""
+    ya, va, aa, j = _drive(t, brk, coef, seg[0], seg[1], seg[2])
+    seg[2] = j
+    return _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay)
+
+
+@njit(cache=True, error_model="numpy")
+def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay, max_steps):
     """Force of the composed model at the sample times (module docstring).
 
     Parameters
     ----------
     t_out : ndarray (n_t,)
-        Non-decreasing output times [s] within ``[t0, knot_t[-1]]``.
-    knot_t, knot_y : ndarray (n_knots,)
-        Strictly increasing knot times [s] and the measured displacement there [m].
+        Non-decreasing output times [s] within ``[t0, brk[-1]]``.
+    brk, coef, restart : ndarray (m + 1,), (m, K), (m + 1,) of bool
+        The measured displacement as polynomial pieces
+        (:class:`~bayesdamper.physics.excitation.PiecewisePolynomial`: breaks [s], local power-basis
+        coefficients [m s^-j], breaks where the velocity may jump). Steps never cross a restart break.
     t0, dp0, v_prev : float
         Start time [s], Δp there [Pa] and the velocity just before it [m/s].
     from_force : bool
@@ -130,10 +144,11 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
     """
     n_t = t_out.shape[0]
     out = np.full(n_t, np.nan)
-    n_k = knot_t.shape[0]
+    m = brk.shape[0] - 1
     if n_t == 0:
         return out, STATUS_OK
-    if n_k < 2 or not (math.isfinite(t0) and knot_t[0] <= t0 <= t_out[0] and t_out[n_t - 1] <= knot_t[n_k - 1]):
+    if (m < 1 or coef.shape[0] != m or restart.shape[0] != m + 1
+            or not (math.isfinite(t0) and brk[0] <= t0 <= t_out[0] and t_out[n_t - 1] <= brk[m])):
         return out, STATUS_BAD_INPUT
     for j in range(prm.shape[0]):
         if not math.isfinite(prm[j]) and not prm[j] == math.inf:
@@ -157,30 +172,48 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
     sc_a[0] = atol
     _atol(prm, atol, sc_a, lay)
     t_end = t_out[n_t - 1]
-    k0 = 0
-    while k0 < n_k - 2 and knot_t[k0 + 1] <= t0:
-        k0 += 1
-    va0 = (knot_y[k0 + 1] - knot_y[k0]) / (knot_t[k0 + 1] - knot_t[k0])
-    ya0 = knot_y[k0] + va0 * (t0 - knot_t[k0])
+    # chamber volumes must stay positive on the input: checked at the breaks (exact for linear pieces; the
+    # right-hand side rejects a non-positive volume between the breaks of higher-degree pieces)
+    for k in range(m + 1):
+        tk = min(max(brk[k], t0), t_end)
+        yk, _, _, _ = _drive(tk, brk, coef, 0, m, min(k, m - 1))
+        if base[B_V01] - base[B_AREA] * yk <= 0.0 or base[B_V02] + base[B_AREA] * yk <= 0.0:
+            return out, STATUS_VOLUME
+        if brk[k] >= t_end:
+            break
+    # the restart interval [brk[a], brk[b]] holding t0
+    a = 0
+    while a < m - 1 and brk[a + 1] <= t0:
+        a += 1
+    while not restart[a]:
+        a -= 1
+    seg = np.zeros(3, dtype=np.int64)
+    seg[0] = a
+    seg[1] = _next_restart(restart, a)
+    seg[2] = a
+    ya0, _, _, j0 = _drive(t0, brk, coef, seg[0], seg[1], seg[2])
+    seg[2] = j0
     if from_force:  # Newton on Δp0 with the slope A_P of the hydraulic force
         f_target = dp0
         dp0 = f_target / base[B_AREA]
-        for _ in range(6):
+        for _ in range(6):  # the steady state before t0: velocity v_prev, no acceleration
             if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)
-                    and _rhs(t0, x, f0, sig, prm, base, t0, ya0, v_prev, lay)):
+                    and _rhs_at(t0, x, f0, sig, prm, base, ya0, v_prev, 0.0, lay)):
                 return out, STATUS_NONFINITE
             dp0 -= (_force(sig, x, prm, base, lay) - f_target) / base[B_AREA]
     if not (math.isfinite(dp0) and _init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)):
         return out, STATUS_NONFINITE
     i_out = 0
     n_steps = 0
-    for k in range(k0, n_k - 1):
-        ts = max(knot_t[k], t0)
-        tk1 = knot_t[k + 1]
-        va = (knot_y[k + 1] - knot_y[k]) / (tk1 - knot_t[k])
-        ys = knot_y[k] + va * (ts - knot_t[k])
+    while a < m:
+        b = _next_restart(restart, a)
+        seg[0] = a
+        seg[1] = b
+        seg[2] = a
+        ts = max(brk[a], t0)
+        tk1 = brk[b]
         while i_out < n_t and t_out[i_out] <= ts:
-            if not _rhs(ts, x, f0, sig, prm, base, ts, ys, va, lay):
+            if not _rhs(ts, x, f0, sig, prm, base, brk, coef, seg, lay):
                 return out, STATUS_NONFINITE
             out[i_out] = _force(sig, x, prm, base, lay)
             i_out += 1
@@ -189,7 +222,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         tb = min(tk1, t_end)
         t = ts
         # Hairer-Wanner initial step
-        if not _rhs(t, x, f0, sig, prm, base, ts, ys, va, lay):
+        if not _rhs(t, x, f0, sig, prm, base, brk, coef, seg, lay):
             return out, STATUS_NONFINITE
         d0 = 0.0
         d1 = 0.0
@@ -202,7 +235,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
         h0 = min(tb - t, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
         for i in range(ns):
             xp[i] = x[i] + h0 * f0[i]
-        ok = _rhs(t + h0, xp, f1, sig, prm, base, ts, ys, va, lay)
+        ok = _rhs(t + h0, xp, f1, sig, prm, base, brk, coef, seg, lay)
         d2 = 0.0
         for i in range(ns):
             d2 += ((f1[i] - f0[i]) / (sc_a[i] + rtol * abs(x[i]))) ** 2
@@ -223,19 +256,19 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                 h = tb - t
                 last = True
             # f, forward-difference Jacobian and time derivative at (t, x)
-            if not _rhs(t, x, f0, sig, prm, base, ts, ys, va, lay):
+            if not _rhs(t, x, f0, sig, prm, base, brk, coef, seg, lay):
                 return out, STATUS_NONFINITE
             for j in range(ns):
                 dj = 1.49e-8 * max(abs(x[j]), sc_a[j] * 1e3)
                 for i in range(ns):
                     xp[i] = x[i]
                 xp[j] = x[j] + dj
-                if not _rhs(t, xp, f1, sig, prm, base, ts, ys, va, lay):
+                if not _rhs(t, xp, f1, sig, prm, base, brk, coef, seg, lay):
                     return out, STATUS_NONFINITE
                 for i in range(ns):
                     jac[i, j] = (f1[i] - f0[i]) / dj
             dt = 1.49e-8 * max(abs(t), 1.0)
-            if not _rhs(t + dt, x, f1, sig, prm, base, ts, ys, va, lay):
+            if not _rhs(t + dt, x, f1, sig, prm, base, brk, coef, seg, lay):
                 return out, STATUS_NONFINITE
             for i in range(ns):
                 ft[i] = (f1[i] - f0[i]) / dt
@@ -266,7 +299,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                                                     ks[2, i] if st > 3 else 0.0, ks[3, i] if st > 4 else 0.0)
                             else:
                                 xp[i] = x_new[i]
-                        if not _rhs(ti, xp, f1, sig, prm, base, ts, ys, va, lay):
+                        if not _rhs(ti, xp, f1, sig, prm, base, brk, coef, seg, lay):
                             good = False
                             break
                         for i in range(ns):
@@ -311,7 +344,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                         for i in range(ns):
                             cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
                             xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
-                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, ts, ys, va, lay):
+                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, brk, coef, seg, lay):
                             return out, STATUS_NONFINITE
                         out[i_out] = _force(sig, xd, prm, base, lay)
                     else:  # F = A_P Δp: the dense output of Δp alone
@@ -326,6 +359,7 @@ def solve_composed(t_out, knot_t, knot_y, t0, dp0, v_prev, base, prm, rtol, atol
                 reject = False
                 h = h_new
                 break
+        a = b
         if i_out >= n_t:
             break
     for i in range(n_t):

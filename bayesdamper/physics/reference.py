@@ -1,9 +1,9 @@
 """Reference solutions that the compiled kernels are checked against: eq. (7) by scipy, and the two-state model eq. (1).
 
-:func:`reference_single_state` integrates eq. (7) with scipy's Radau, piecewise between the knots (no step
-crosses a velocity discontinuity). :func:`simulate_two_state` integrates the two-state model eq. (1) (both
-chamber pressures, optionally with an accumulator on the low-pressure side), the paper's higher-fidelity
-reference from which the single-state model is derived.
+:func:`reference_single_state` integrates eq. (7) with scipy's Radau, piecewise between the input's velocity
+steps (no step crosses a velocity discontinuity). :func:`simulate_two_state` integrates the two-state model
+eq. (1) (both chamber pressures, optionally with an accumulator on the low-pressure side), the paper's
+higher-fidelity reference from which the single-state model is derived.
 """
 
 from __future__ import annotations
@@ -12,17 +12,55 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.integrate import solve_ivp
 
 from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
-from bayesdamper.physics.excitation import PiecewiseLinear
-from bayesdamper.physics.single_state import _prepare, _solve_ivp_segments
+from bayesdamper.physics.excitation import PiecewiseLinear, PiecewisePolynomial
+from bayesdamper.physics.single_state import _prepare
 
 
-def _python_rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, b_const):
-    """Plain-Python eq. (7) right-hand side, written independently of the kernel [Pa s^-1]."""
+def _solve_ivp_segments(rhs, x0, t_out, window: PiecewisePolynomial, what: str, **kw) -> np.ndarray:
+    """``solve_ivp`` between the restart breaks of the input (velocity steps are breakpoints): states at ``t_out``.
+
+    ``rhs(t, x, y, v)`` gets the piston displacement [m] and velocity [m s^-1] at t. Returns an array of shape
+    (n_states, n_t).
+    """
+    x = np.atleast_1d(np.asarray(x0, dtype=float))
+    out = np.full((x.size, t_out.size), np.nan)
+    out[:, t_out <= window.start] = x[:, None]
+    edges = window.breaks[window.restart]
+    for k in range(edges.size - 1):
+        ta, tb = float(edges[k]), min(float(edges[k + 1]), float(t_out[-1]))
+        if ta >= t_out[-1]:
+            break
+        sel = (t_out > ta) & (t_out <= tb)
+        t_eval = t_out[sel]
+        n_sel = t_eval.size
+        if n_sel == 0 or t_eval[-1] < tb:
+            t_eval = np.append(t_eval, tb)
+        pieces = np.flatnonzero((window.breaks[:-1] >= ta) & (window.breaks[1:] <= float(edges[k + 1])))
+
+        def y_v(t, k_lo=int(pieces[0]), k_hi=int(pieces[-1])):  # the interval's pieces only: at a velocity
+            k_ = int(np.clip(np.searchsorted(window.breaks, t, side="right") - 1, k_lo, k_hi))  # step, its own
+            c = window.coefs[k_]
+            s_ = t - window.breaks[k_]
+            y = float(np.polyval(c[::-1], s_))
+            v = float(np.polyval((c[1:] * np.arange(1, c.size))[::-1], s_))
+            return y, v
+
+        sol = solve_ivp(lambda t, xx: rhs(t, xx, *y_v(t)), (ta, tb), x, t_eval=t_eval, **kw)
+        if sol.status != 0:
+            raise BayesDamperError(f"{what} solve failed: {sol.message}")
+        out[:, sel] = sol.y[:, :n_sel]
+        x = sol.y[:, -1]
+    return out
+
+
+def _python_rhs(t, x, yp, vel, area, v01, v02, b0, fl, alpha_v, p_r, b_const):
+    """Plain-Python eq. (7) right-hand side at displacement ``yp`` [m] and velocity ``vel`` [m/s], written
+    independently of the kernel [Pa s^-1]."""
     dp = x[0]
-    yp = yk + vel * (t - tk)
     if b_const is None:
         p_hi = p_r + abs(dp)
         b_hi = b0 * (1.0 + alpha_v) / (alpha_v + b0 * p_r / (p_hi * p_hi))
@@ -40,7 +78,7 @@ def _python_rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, b_const
 
 def reference_single_state(
     t_out: np.ndarray,
-    excitation: PiecewiseLinear,
+    excitation: PiecewiseLinear | PiecewisePolynomial,
     damper: DamperConstants,
     flow: FlowCoefficients,
     dynamic: DynamicParameters | None,
@@ -72,8 +110,8 @@ def reference_single_state(
     consts = (d.piston_area, d.chamber_volume_1, d.chamber_volume_2, d.liquid_bulk_modulus,
               flow.as_array().tolist(), alpha_v, p_r, constant_bulk_modulus)
 
-    def rhs(t, x, tk, yk, vel):
-        return _python_rhs(t, x, tk, yk, vel, *consts)
+    def rhs(t, x, yp, vel):
+        return _python_rhs(t, x, yp, vel, *consts)
 
     return _solve_ivp_segments(rhs, dp0, t_out, window, "reference single-state", method=method,
                                rtol=rtol, atol=atol)[0]
@@ -99,7 +137,7 @@ class TwoStateSolution:
 
 def simulate_two_state(
     t_out: np.ndarray,
-    excitation: PiecewiseLinear,
+    excitation: PiecewiseLinear | PiecewisePolynomial,
     damper: DamperConstants,
     flow: FlowCoefficients,
     dynamic: DynamicParameters,
@@ -144,9 +182,8 @@ def simulate_two_state(
     def bulk(p):
         return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
 
-    def rhs(t, x, tk, yk, vel):
+    def rhs(t, x, yp, vel):
         p1, p2 = x
-        yp = yk + vel * (t - tk)
         dp = p1 - p2
         c_l, c_q = (fl[0], fl[1]) if dp >= 0 else (fl[2], fl[3])
         q = 2.0 * dp / (c_l + math.sqrt(c_l * c_l + 4.0 * c_q * abs(dp))) if dp else 0.0
@@ -154,7 +191,7 @@ def simulate_two_state(
         return [bulk(p1) / (v01 - area * yp) * (net + g * max(p_r - p1, 0.0)),
                 bulk(p2) / (v02 + area * yp) * (-net + g * max(p_r - p2, 0.0))]
 
-    y_knots = window.knot_displacements  # ends at t_out[-1]; y_P is linear in between
+    y_knots = window.displacement(window.breaks)  # ends at t_out[-1]
     if np.any(v01 - area * y_knots <= 0) or np.any(v02 + area * y_knots <= 0):
         raise BayesDamperError("two-state solve failed: a chamber volume is <= 0 on the excitation")
     x0 = [p_r + max(dp0, 0.0), p_r + max(-dp0, 0.0)]

@@ -2,8 +2,9 @@
 
 RODAS4 (Hairer & Wanner, Solving ODEs II, sec. IV.7; coefficients of rodas.f, METH=1): six stages, order
 4(3), L-stable and stiffly accurate, with the order-3 dense output of rodas.f and the Gustafsson step
-predictor. Both the eq. (7) kernel (:mod:`~bayesdamper.physics.single_state`) and the augmented kernel
-(:mod:`~bayesdamper.physics.augmented`) take their stage arithmetic, dense output and step control from here.
+predictor. Both the eq. (7) kernel (:mod:`~bayesdamper.physics.single_state`) and the composed kernel of any
+effects (:mod:`~bayesdamper.physics.composed_template`) take their stage arithmetic, dense output and step control
+from here.
 
 Status codes of the kernels (``STATUS_MESSAGES`` maps them to text): 0 success (output finite),
 1 non-finite state, 2 step-size underflow, 3 maximum number of steps exceeded, 4 a chamber volume

@@ -35,12 +35,11 @@ import math
 
 import numpy as np
 from numba import njit
-from scipy.integrate import solve_ivp
 
 from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
 from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
-from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.excitation import PiecewiseLinear, PiecewisePolynomial, as_drive
 from bayesdamper.physics.orifice import orifice_flow, orifice_flow_and_slope
 from bayesdamper.physics.rodas import (
     _GAMMA,
@@ -68,11 +67,44 @@ __all__ = ["simulate_single_state", "solve_single_state", "solve_single_state_ba
 
 # ----------------------------------------------------------------------------- kernel internals
 @njit(cache=True)
-def _rhs(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base):
-    """Right-hand side of eq. (7) on one knot segment (y_P = yk + vel (t - tk)) [Pa s^-1]."""
-    yp = yk + vel * (t - tk)
+def drive(t, brk, coef, a, b, j):
+    """Input at ``t`` on the pieces ``a .. b - 1``: (y [m], v [m/s], dv/dt [m/s^2], piece index).
+
+    ``j`` is where the search for the piece holding ``t`` starts (the last one used); the pieces are
+    :class:`~bayesdamper.physics.excitation.PiecewisePolynomial`'s local power basis.
+    """
+    while j < b - 1 and t >= brk[j + 1]:
+        j += 1
+    while j > a and t < brk[j]:
+        j -= 1
+    s = t - brk[j]
+    k = coef.shape[1] - 1
+    y = coef[j, k]
+    v = 0.0
+    acc = 0.0
+    for i in range(k - 1, -1, -1):  # Horner with the first two derivatives
+        acc = acc * s + 2.0 * v
+        v = v * s + y
+        y = y * s + coef[j, i]
+    return y, v, acc, j
+
+
+@njit(cache=True)
+def next_restart(restart, k):
+    """Index of the first restart break after break ``k``."""
+    b = k + 1
+    while not restart[b]:
+        b += 1
+    return b
+
+
+@njit(cache=True)
+def _rhs(dp, yp, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base):
+    """Right-hand side of eq. (7) at piston displacement ``yp`` [m] and velocity ``vel`` [m/s] [Pa s^-1]."""
     vol1 = v01 - area * yp
     vol2 = v02 + area * yp
+    if not (vol1 > 0.0 and vol2 > 0.0):
+        return math.nan
     b1 = b2 = b_base
     if bulk_mode == 0:  # eq. (6): the loaded chamber at p_R + |Δp|, the other at p_R
         loaded = bulk_modulus_scalar(p_r + abs(dp), b0, alpha_v, p_r)
@@ -85,11 +117,12 @@ def _rhs(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_
 
 
 @njit(cache=True)
-def _rhs_jac(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base, atol):
-    """Eq. (7) right-hand side F, dF/dΔp [s^-1] and dF/dt [Pa s^-2] on one knot segment."""
-    yp = yk + vel * (t - tk)
+def _rhs_jac(dp, yp, vel, acc, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base, atol):
+    """Eq. (7) right-hand side F, dF/dΔp [s^-1] and dF/dt [Pa s^-2] at (y_P, v_P, a_P)."""
     vol1 = v01 - area * yp
     vol2 = v02 + area * yp
+    if not (vol1 > 0.0 and vol2 > 0.0):
+        return math.nan, math.nan, math.nan
     ds_ddp = 0.0
     b1 = b2 = b_base
     if bulk_mode == 0:
@@ -106,7 +139,7 @@ def _rhs_jac(t, dp, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode
     s = b1 / vol1 + b2 / vol2
     r = area * vel - q
     ds_dt = area * vel * (b1 / (vol1 * vol1) - b2 / (vol2 * vol2))
-    return s * r, ds_ddp * r - s * dq, ds_dt * r
+    return s * r, ds_ddp * r - s * dq, ds_dt * r + s * area * acc
 
 
 @njit(cache=True)
@@ -115,19 +148,24 @@ def _pos(x):
 
 
 @njit(cache=True)
-def _inputs_valid(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
+def _inputs_valid(t_out, brk, coef, restart, dp0, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
                   b_const, rtol, atol):
-    n_k = knot_t.shape[0]
-    if n_k < 2 or knot_y.shape[0] != n_k or fl.shape[0] != 4:
+    n_b = brk.shape[0]
+    if n_b < 2 or coef.shape[0] != n_b - 1 or coef.shape[1] < 2 or restart.shape[0] != n_b or fl.shape[0] != 4:
         return False
-    for k in range(n_k):
-        ok = math.isfinite(knot_t[k]) and math.isfinite(knot_y[k])
-        if not ok or (k > 0 and not knot_t[k] > knot_t[k - 1]):
+    if not (restart[0] and restart[n_b - 1]):
+        return False
+    for k in range(n_b):
+        if not math.isfinite(brk[k]) or (k > 0 and not brk[k] > brk[k - 1]):
             return False
+    for k in range(n_b - 1):
+        for i in range(coef.shape[1]):
+            if not math.isfinite(coef[k, i]):
+                return False
     for i in range(t_out.shape[0]):
         if not math.isfinite(t_out[i]) or (i > 0 and t_out[i] < t_out[i - 1]):
             return False
-    if t_out[0] < knot_t[0] or t_out[t_out.shape[0] - 1] > knot_t[n_k - 1]:
+    if t_out[0] < brk[0] or t_out[t_out.shape[0] - 1] > brk[n_b - 1]:
         return False
     if not (_pos(area) and _pos(v01) and _pos(v02) and _pos(rtol) and _pos(atol) and rtol < 1.0
             and math.isfinite(dp0) and fl[0] + fl[1] > 0.0 and fl[2] + fl[3] > 0.0):
@@ -141,13 +179,14 @@ def _inputs_valid(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, fl, alpha_v, p
 
 
 @njit(cache=True)
-def _initial_step(t, x, f0, tb, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
+def _initial_step(t, x, f0, tb, brk, coef, a, b, j, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode,
                   b_base, rtol, atol):
     """Hairer-Wanner initial step heuristic (one extra F evaluation) [s]."""
     sc = atol + rtol * abs(x)
     d0, d1, span = abs(x) / sc, abs(f0) / sc, tb - t
     h0 = min(span, 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1)
-    f1 = _rhs(t + h0, x + h0 * f0, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+    y, v, _, j = drive(t + h0, brk, coef, a, b, j)
+    f1 = _rhs(x + h0 * f0, y, v, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
     d2 = abs(f1 - f0) / sc / h0
     dmax = max(d1, d2)
     if not math.isfinite(dmax):
@@ -158,20 +197,26 @@ def _initial_step(t, x, f0, tb, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_
 
 # ----------------------------------------------------------------------------- public kernel
 @njit(cache=True)
-def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
-                       bulk_mode, b_const, rtol, atol):
+def solve_eq7(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4, alpha_v, p_r, bulk_mode, b_const,
+              rtol, atol):
     """Solve eq. (7) at the sample times: the compiled hot path (RODAS4, see the module docstring).
 
-    The transient starts at ``knot_t[0]`` (the velocity step) with Δp = ``dp0``.
+    The solution starts at ``brk[0]`` with Δp = ``dp0``; the input is the displacement of
+    :class:`~bayesdamper.physics.excitation.PiecewisePolynomial` (``brk``, ``coef``, ``restart``). Steps never
+    cross a restart break (a velocity step), where the step control starts afresh; they cross the other breaks.
 
     Parameters
     ----------
     t_out : ndarray, shape (n_t,)
-        Non-decreasing output times [s] within ``[knot_t[0], knot_t[-1]]``.
-    knot_t, knot_y : ndarray, shape (n_knots,)
-        Strictly increasing knot times [s] and piston displacement y_P there [m].
+        Non-decreasing output times [s] within ``[brk[0], brk[-1]]``.
+    brk : ndarray, shape (m + 1,)
+        Strictly increasing break times [s].
+    coef : ndarray, shape (m, K)
+        Local power-basis coefficients of the piston displacement y_P [m s^-j].
+    restart : ndarray of bool, shape (m + 1,)
+        Breaks where the velocity may jump (the first and last are True).
     dp0 : float
-        Δp at ``knot_t[0]`` [Pa].
+        Δp at ``brk[0]`` [Pa].
     area, v01, v02 : float
         Piston area A_P [m^2]; chamber volumes V_{0,1}, V_{0,2} at y_P = 0 [m^3].
     b0, alpha_v, p_r : float
@@ -199,22 +244,21 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
     out = np.full(n_t, np.nan)
     if n_t == 0:
         return out, STATUS_OK, 0
-    if not _inputs_valid(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
+    if not _inputs_valid(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
                          bulk_mode, b_const, rtol, atol):
         return out, STATUS_BAD_INPUT, 0
     fl = flow4
-    n_k = knot_t.shape[0]
-    t_start = knot_t[0]
+    m = brk.shape[0] - 1
+    t_start = brk[0]
     t_end = t_out[n_t - 1]
-    # Chamber volumes must stay positive; y_P is linear between knots so the ends suffice.
-    for k in range(n_k):
-        tk = knot_t[k]
-        yk = knot_y[k]
-        if tk > t_end:
-            yk = knot_y[k - 1] + (knot_y[k] - knot_y[k - 1]) * (t_end - knot_t[k - 1]) / (tk - knot_t[k - 1])
+    # Chamber volumes must stay positive: checked at the breaks (exact for linear pieces; the right-hand side
+    # rejects a non-positive volume between breaks of higher-degree pieces)
+    for k in range(m + 1):
+        tk = min(brk[k], t_end)
+        yk, _, _, _ = drive(tk, brk, coef, 0, m, max(k - 1, 0) if tk < brk[k] else min(k, m - 1))
         if v01 - area * yk <= 0.0 or v02 + area * yk <= 0.0:
             return out, STATUS_VOLUME, 0
-        if tk >= t_end:
+        if brk[k] >= t_end:
             break
     b_base = b_const if bulk_mode == 1 else bulk_modulus_scalar(p_r, b0, alpha_v, p_r)
 
@@ -225,16 +269,15 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
     x = dp0
     n_rhs = 0
     n_steps = 0
-    for k in range(n_k - 1):
-        if i_out >= n_t:
-            break
-        tk = knot_t[k]
-        yk = knot_y[k]
-        vel = (knot_y[k + 1] - yk) / (knot_t[k + 1] - tk)
-        tb = min(knot_t[k + 1], t_end)
-        t = tk
-        f0 = _rhs(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
-        h = _initial_step(t, x, f0, tb, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+    a = 0
+    while a < m and i_out < n_t:
+        b = next_restart(restart, a)
+        tb = min(brk[b], t_end)
+        t = brk[a]
+        j = a
+        yp, vel, acc, j = drive(t, brk, coef, a, b, j)
+        f0 = _rhs(x, yp, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+        h = _initial_step(t, x, f0, tb, brk, coef, a, b, j, area, v01, v02, b0, fl, alpha_v, p_r,
                           bulk_mode, b_base, rtol, atol)
         n_rhs += 2
         n_acc_seg = 0
@@ -248,8 +291,8 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
             if t + 1.0001 * h >= tb:
                 h = tb - t
                 last = True
-            f0, jac, ft = _rhs_jac(t, x, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r,
-                                   bulk_mode, b_base, atol)
+            yp, vel, acc, j = drive(t, brk, coef, a, b, j)
+            f0, jac, ft = _rhs_jac(x, yp, vel, acc, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base, atol)
             n_rhs += 1
             if not (math.isfinite(f0) and math.isfinite(jac) and math.isfinite(ft)):
                 return out, STATUS_NONFINITE, n_rhs
@@ -263,20 +306,24 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                     continue
                 inv = 1.0 / e
                 k1 = stage_rhs(1, f0, h, ft, 0.0, 0.0, 0.0, 0.0, 0.0) * inv
-                f = _rhs(stage_time(2, t, h), stage_point(2, x, k1, 0.0, 0.0, 0.0), tk, yk, vel, area, v01, v02,
-                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                yp, vel, _, j = drive(stage_time(2, t, h), brk, coef, a, b, j)
+                f = _rhs(stage_point(2, x, k1, 0.0, 0.0, 0.0), yp, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+                         bulk_mode, b_base)
                 k2 = stage_rhs(2, f, h, ft, k1, 0.0, 0.0, 0.0, 0.0) * inv
-                f = _rhs(stage_time(3, t, h), stage_point(3, x, k1, k2, 0.0, 0.0), tk, yk, vel, area, v01, v02,
-                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                yp, vel, _, j = drive(stage_time(3, t, h), brk, coef, a, b, j)
+                f = _rhs(stage_point(3, x, k1, k2, 0.0, 0.0), yp, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+                         bulk_mode, b_base)
                 k3 = stage_rhs(3, f, h, ft, k1, k2, 0.0, 0.0, 0.0) * inv
-                f = _rhs(stage_time(4, t, h), stage_point(4, x, k1, k2, k3, 0.0), tk, yk, vel, area, v01, v02,
-                         b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                yp, vel, _, j = drive(stage_time(4, t, h), brk, coef, a, b, j)
+                f = _rhs(stage_point(4, x, k1, k2, k3, 0.0), yp, vel, area, v01, v02, b0, fl, alpha_v, p_r,
+                         bulk_mode, b_base)
                 k4 = stage_rhs(4, f, h, ft, k1, k2, k3, 0.0, 0.0) * inv
                 xs = stage_point(5, x, k1, k2, k3, k4)
-                f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                yp, vel, _, j = drive(t + h, brk, coef, a, b, j)
+                f = _rhs(xs, yp, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
                 k5 = stage_rhs(5, f, h, ft, k1, k2, k3, k4, 0.0) * inv
                 xs += k5
-                f = _rhs(t + h, xs, tk, yk, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
+                f = _rhs(xs, yp, vel, area, v01, v02, b0, fl, alpha_v, p_r, bulk_mode, b_base)
                 k6 = stage_rhs(6, f, h, ft, k1, k2, k3, k4, k5) * inv
                 x_new = xs + k6
                 n_rhs += 5
@@ -313,6 +360,7 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
                 reject = False
                 h = h_new
                 break
+        a = b
     for i in range(n_t):
         if not math.isfinite(out[i]):
             return out, STATUS_NONFINITE, n_rhs
@@ -320,20 +368,41 @@ def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, al
 
 
 @njit(cache=True)
+def linear_pieces(knot_t, knot_y):
+    """Degree-1 input arrays (breaks, coefficients, restart flags) through piecewise-linear knots."""
+    n = knot_t.shape[0]
+    coef = np.empty((max(n - 1, 0), 2))
+    for k in range(n - 1):
+        coef[k, 0] = knot_y[k]
+        coef[k, 1] = (knot_y[k + 1] - knot_y[k]) / (knot_t[k + 1] - knot_t[k])
+    restart = np.ones(n, dtype=np.bool_)
+    return coef, restart
+
+
+@njit(cache=True)
+def solve_single_state(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
+                       bulk_mode, b_const, rtol, atol):
+    """:func:`solve_eq7` with a piecewise-linear input through knots (a triangular test's transient).
+
+    The transient starts at ``knot_t[0]`` (the velocity step) with Δp = ``dp0``; every knot is a velocity
+    step. Parameters and returns are those of :func:`solve_eq7` with ``knot_t`` [s], ``knot_y`` [m] (strictly
+    increasing knot times and the piston displacement there) for the input.
+    """
+    if knot_t.shape[0] < 2 or knot_y.shape[0] != knot_t.shape[0]:
+        return np.full(t_out.shape[0], np.nan), STATUS_BAD_INPUT, 0
+    for k in range(knot_t.shape[0] - 1):
+        if not knot_t[k + 1] > knot_t[k]:
+            return np.full(t_out.shape[0], np.nan), STATUS_BAD_INPUT, 0
+    coef, restart = linear_pieces(knot_t, knot_y)
+    return solve_eq7(t_out, knot_t, coef, restart, dp0, area, v01, v02, b0, flow4, alpha_v, p_r, bulk_mode,
+                     b_const, rtol, atol)
+
+
+@njit(cache=True)
 def solve_single_state_batch(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flow4, alpha_v, p_r,
                              bulk_mode, b_const, rtol, atol):
-    """:func:`solve_single_state` for many (α_V, p_R) pairs on one excitation (a plain loop).
-
-    Parameters are those of :func:`solve_single_state` except ``alpha_v`` and ``p_r``:
-    ndarray, shape (n,), liquid-gas ratios [-] and reference pressures [Pa].
-
-    Returns
-    -------
-    dp : ndarray, shape (n, n_t)
-        Δp at ``t_out`` [Pa] per parameter pair.
-    status : ndarray of int64, shape (n,)
-        Kernel status per pair (0 = success).
-    """
+    """:func:`solve_single_state` for many (α_V, p_R) pairs on one excitation (a plain loop): ``alpha_v`` [-] and
+    ``p_r`` [Pa] are arrays of shape (n,); returns Δp [Pa], shape (n, n_t), and the status per pair, shape (n,)."""
     n = alpha_v.shape[0]
     dp = np.empty((n, t_out.shape[0]))
     status = np.empty(n, dtype=np.int64)
@@ -346,7 +415,8 @@ def solve_single_state_batch(t_out, knot_t, knot_y, dp0, area, v01, v02, b0, flo
 
 
 # ----------------------------------------------------------------------------- Python wrappers
-def _prepare(t_out, excitation: PiecewiseLinear, t0: float | None) -> tuple[np.ndarray, PiecewiseLinear]:
+def _prepare(t_out, excitation: PiecewiseLinear | PiecewisePolynomial,
+             t0: float | None) -> tuple[np.ndarray, PiecewisePolynomial]:
     t_out = np.ascontiguousarray(t_out, dtype=float)
     if t_out.ndim != 1 or t_out.size == 0 or not np.all(np.isfinite(t_out)):
         raise SettingsError("output times must be a non-empty 1-D array of finite numbers")
@@ -356,40 +426,12 @@ def _prepare(t_out, excitation: PiecewiseLinear, t0: float | None) -> tuple[np.n
     if t_out[0] < t0:
         raise SettingsError(f"output times start at {t_out[0]!r} s, before the transient start t0={t0!r} s")
     t1 = float(t_out[-1]) if t_out[-1] > t0 else t0 + 1.0
-    return t_out, excitation.window(t0, t1)
-
-
-def _solve_ivp_segments(rhs, x0, t_out, window: PiecewiseLinear, what: str, **kw) -> np.ndarray:
-    """``solve_ivp`` knot segment by knot segment (knots are breakpoints): states at ``t_out``.
-
-    ``rhs(t, x, t_k, y_k, v_k)`` gets the segment's start time [s], displacement [m] and velocity
-    [m s^-1]. Returns an array of shape (n_states, n_t).
-    """
-    x = np.atleast_1d(np.asarray(x0, dtype=float))
-    out = np.full((x.size, t_out.size), np.nan)
-    out[:, t_out <= window.start] = x[:, None]
-    kt, ky = window.knot_times, window.knot_displacements
-    for k in range(kt.size - 1):
-        ta, tb = kt[k], min(kt[k + 1], t_out[-1])
-        if ta >= t_out[-1]:
-            break
-        sel = (t_out > ta) & (t_out <= tb)
-        t_eval = t_out[sel]
-        n_sel = t_eval.size
-        if n_sel == 0 or t_eval[-1] < tb:
-            t_eval = np.append(t_eval, tb)
-        vel = (ky[k + 1] - ky[k]) / (kt[k + 1] - ta)
-        sol = solve_ivp(rhs, (ta, tb), x, t_eval=t_eval, args=(ta, ky[k], vel), **kw)
-        if sol.status != 0:
-            raise BayesDamperError(f"{what} solve failed: {sol.message}")
-        out[:, sel] = sol.y[:, :n_sel]
-        x = sol.y[:, -1]
-    return out
+    return t_out, as_drive(excitation).window(t0, t1)
 
 
 def simulate_single_state(
     t_out: np.ndarray,
-    excitation: PiecewiseLinear,
+    excitation: PiecewiseLinear | PiecewisePolynomial,
     damper: DamperConstants,
     flow: FlowCoefficients,
     dynamic: DynamicParameters | None,
@@ -406,7 +448,7 @@ def simulate_single_state(
     ----------
     t_out : ndarray, shape (n_t,)
         Non-decreasing sample times [s], all >= ``t0``.
-    excitation : PiecewiseLinear
+    excitation : PiecewiseLinear or PiecewisePolynomial
         Piston displacement y_P(t) [m].
     damper : DamperConstants
         A_P [m^2], V_{0,1}, V_{0,2} [m^3], B_0 [Pa].
@@ -440,9 +482,8 @@ def simulate_single_state(
         mode, b_const, alpha_v, p_r = 0, 0.0, dynamic.liquid_gas_ratio, dynamic.reference_pressure
     else:
         mode, b_const, alpha_v, p_r = 1, float(constant_bulk_modulus), 1.0, 1.0
-    knot_t, knot_y = np.array(window.knot_times), np.array(window.knot_displacements)  # writable:
-    dp, status, _ = solve_single_state(  # one compiled signature shared with direct kernel callers
-        t_out, knot_t, knot_y, float(dp0), damper.piston_area,
+    dp, status, _ = solve_eq7(
+        t_out, window.breaks, window.coefs, window.restart, float(dp0), damper.piston_area,
         damper.chamber_volume_1, damper.chamber_volume_2, damper.liquid_bulk_modulus, flow.as_array(),
         float(alpha_v), float(p_r), mode, b_const, float(rtol), float(atol),
     )

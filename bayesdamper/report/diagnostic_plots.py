@@ -42,7 +42,7 @@ def corner_plot(result, *, bins: int = 20, max_samples: int | None = 20000, cred
 
     Parameters
     ----------
-    result : bayesdamper.inference.stage2.TransientResult
+    result : bayesdamper.inference.stage2.WindowResult
         ``chains`` shape (n_chains, n_draws, ndim) in physical units, ``names``, ``entry["ls"]``.
     bins : int
         Histogram bins per parameter (fewer draw faster).
@@ -96,7 +96,7 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
 
     Parameters
     ----------
-    result : bayesdamper.inference.stage2.TransientResult
+    result : bayesdamper.inference.stage2.WindowResult
         ``chains`` shape (n_chains, n_draws, ndim), walkers ensemble-major: chain ``c`` belongs to
         ensemble ``c // (n_chains // n_ensembles)``.
     n_ensembles : int

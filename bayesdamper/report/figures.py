@@ -6,6 +6,8 @@ Layout (paths relative to the output folder):
 * ``figures/figure8_transients_p<k>.{png,pdf}``: transients with predictive bands, ``FIGURE8_PANELS``
   per page (paper Fig. 8);
 * ``figures/figure9_drift.{png,pdf}``: p_R and 100/α_V against speed (paper Fig. 9);
+* ``figures/loops/<id>.png``: a window of whole cycles against its predictive (force against time, displacement
+  and velocity);
 * ``figures/corner/<id>.png`` and ``figures/trace/<id>.png``: per-transient posterior diagnostics
   (PNG only, to keep the run fast).
 
@@ -85,7 +87,7 @@ def _run(jobs: list[Job], workers: int) -> list[list[Path]]:
 
 
 def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: dict, *,
-                           workers: int | None = None) -> dict[str, list[str]]:
+                           workers: int | None = None, windows=None) -> dict[str, list[str]]:
     """Write every figure of an ``identify`` run and return where they went.
 
     Parameters
@@ -96,36 +98,42 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
         The data set (its name titles the paper's figures).
     segs : sequence of bayesdamper.io.segments.SegmentedRecord
         Segmented records (not needed by the current figures; part of the stable signature).
-    static : bayesdamper.inference.stage1.StaticFit
-        Stage-1 fit.
-    results : sequence of bayesdamper.inference.stage2.TransientResult
+    static : bayesdamper.inference.stage1.StaticFit or None
+        Stage-1 fit (None: no plateaus, no Figure 3).
+    results : sequence of bayesdamper.inference.stage2.WindowResult
         Stage-2 results, in summary order.
     summary : dict
         The run summary (``segments``, ``drift``, ``credible_mass``, ``settings``).
     workers : int, optional
         Processes drawing figures in parallel (default: the number of CPUs); 1 draws in this process.
+    windows : sequence of bayesdamper.io.windows.Window, optional
+        The windows of ``results`` (their inputs draw the loops of windows of whole cycles).
 
     Returns
     -------
     dict of str to list of str
-        ``"figure3_static"``, ``"figure8_transients"``, ``"figure9_drift"``, ``"corner"`` and
+        ``"figure3_static"``, ``"figure8_transients"``, ``"figure9_drift"``, ``"loops"``, ``"corner"`` and
         ``"trace"``, each mapped to its files' paths relative to ``out_dir`` (POSIX separators), in
         result order.
     """
     del segs  # kept in the signature for figures that need the raw segments
     out_dir = Path(out_dir)
     fig_dir = out_dir / FIGURES_DIR
-    for sub in ("", "corner", "trace"):
+    for sub in ("", "corner", "trace", "loops"):
         (fig_dir / sub).mkdir(parents=True, exist_ok=True)
     mass = float(summary.get("credible_mass", 0.9))
     name = f"data set {ds.name!r}" if ds is not None else None
     results = list(results)
+    by_id = {w.id: w for w in (windows or [])}
 
-    jobs: list[Job] = [("figure3_static", "figure3_static", (static,), {"title": name},
-                        fig_dir / "figure3_static", PAPER_FORMATS)]
-    n_pages = math.ceil(len(results) / FIGURE8_PANELS)
+    jobs: list[Job] = []
+    if static is not None:
+        jobs.append(("figure3_static", "figure3_static", (static,), {"title": name}, fig_dir / "figure3_static",
+                     PAPER_FORMATS))
+    steps = [r for r in results if r.entry.get("kind") != "cycles"]
+    n_pages = math.ceil(len(steps) / FIGURE8_PANELS)
     for k in range(n_pages):
-        page = results[k * FIGURE8_PANELS:(k + 1) * FIGURE8_PANELS]
+        page = steps[k * FIGURE8_PANELS:(k + 1) * FIGURE8_PANELS]
         title = (name or "") + (f", page {k + 1} of {n_pages}" if n_pages > 1 else "")
         jobs.append(("figure8_transients", "figure8_transients", (page, FIGURE8_PANELS),
                      {"credible_mass": mass, "title": title.lstrip(", ") or None},
@@ -136,6 +144,10 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
                      {"title": name}, fig_dir / "figure9_drift", PAPER_FORMATS))
     for r in results:
         sid = r.entry["id"]
+        w = by_id.get(sid)
+        if r.entry.get("kind") == "cycles" and w is not None:
+            jobs.append(("loops", "window_loops", (r, w.displacement, w.drive.velocity(w.time), mass), {},
+                         fig_dir / "loops" / sid, DIAGNOSTIC_FORMATS))
         jobs.append(("corner", "corner_plot", (r,),
                      {"bins": CORNER_BINS, "max_samples": CORNER_MAX_SAMPLES, "credible_mass": mass},
                      fig_dir / "corner" / sid, DIAGNOSTIC_FORMATS))
@@ -143,7 +155,7 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
                      fig_dir / "trace" / sid, DIAGNOSTIC_FORMATS))
 
     workers = workers if workers is not None else (os.cpu_count() or 1)
-    keys = ("figure3_static", "figure8_transients", "figure9_drift", "corner", "trace")
+    keys = ("figure3_static", "figure8_transients", "figure9_drift", "loops", "corner", "trace")
     written: dict[str, list[str]] = {k: [] for k in keys}
     for job, paths in zip(jobs, _run(jobs, workers), strict=True):
         written[job[0]].extend(Path(p).relative_to(out_dir).as_posix() for p in paths)

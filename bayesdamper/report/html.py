@@ -131,6 +131,11 @@ def _data_section(summary: Mapping) -> str:
 
 def _static_section(summary: Mapping, out_dir: Path) -> str:
     mass = float(summary.get("credible_mass", 0.9))
+    if not summary.get("static"):
+        return ('<h2 id="static">2. Static characteristic</h2>'
+                "<p>No triangular test, so no plateaus and no stage 1: the flow coefficients of eq. (4) are "
+                "estimated with the other parameters in every window (their intervals are in the posterior "
+                "table).</p>")
     figs = (summary.get("figures") or {}).get("figure3_static")
     rows = [[f"{_STATIC_UNITS.get(k, (_e(k), ''))[0]}", _STATIC_UNITS.get(k, ("", ""))[1],
              _num(v.get("median")), _num(v.get("lo")), _num(v.get("hi"))]
@@ -252,10 +257,9 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
     if diagnosis.get("report_text"):
         out.append(f"<pre>{_e(diagnosis['report_text'])}</pre>")
     base, final = diagnosis.get("baseline") or {}, diagnosis.get("final") or {}
-    whole = diagnosis.get("mode") == "whole-record"
-    unit = "record" if whole else "transient"
+    unit = "window"
     out.append(_table(["", "value"], [
-        ["noise sd (rests or first differences) [N]" if whole else "plateau noise sd [N]",
+        [f"noise sd [N] ({_e((diagnosis.get('noise') or {}).get('source', 'plateaus'))})",
          _num(diagnosis.get("noise_N"), ".3g")],
         ["pooled J, eq. (7) baseline", _num(base.get("J_pooled"), ".4f")],
         ["pooled J, final model", _num(final.get("J_pooled"), ".4f")],
@@ -369,27 +373,14 @@ def render_report(summary: dict, diagnosis: dict | None, out_dir: Path, *,
     nav = "".join(f'<a href="#{a}">{t}</a>' for a, t in (
         ("data", "Data"), ("static", "Static"), ("posterior", "Posterior"), ("transients", "Fig. 8"),
         ("drift", "Fig. 9"), ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
-    whole = summary.get("mode") == "whole-record"
-    if whole:
-        from bayesdamper.report.whole_html import whole_body, whole_diagnosis_extra, whole_overview
-
-        nav = "".join(f'<a href="#{a}">{t}</a>' for a, t in (
-            ("data", "Data"), ("posterior", "Posterior"), ("transients", "Loops"), ("drift", "Drift"),
-            ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
-        sections = [whole_overview(summary, diagnosis), whole_body(summary, out_dir),
-                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note, number=5)
-                    + (whole_diagnosis_extra(diagnosis, mass) if diagnosis else ""),
-                    _provenance_section(summary, out_dir, number=6)]
-    else:
-        sections = [_overview(summary, diagnosis), _data_section(summary), _static_section(summary, out_dir),
-                    _posterior_section(summary), _figures_section(summary, out_dir),
-                    _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note),
-                    _provenance_section(summary, out_dir)]
-    method = ("the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6); records that are "
-              "not triangular tests are identified as whole records, every parameter at once, with Bayesian "
-              "posteriors." if whole else
-              "the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6), identified in two "
-              "stages, with Bayesian posteriors instead of single points.")
+    sections = [_overview(summary, diagnosis), _data_section(summary), _static_section(summary, out_dir),
+                _posterior_section(summary), _figures_section(summary, out_dir),
+                _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note),
+                _provenance_section(summary, out_dir)]
+    method = ("the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6), identified window "
+              "by window (the transients after the velocity steps of triangular tests, with the flow coefficients "
+              "from their plateaus; whole cycles of other records, with the flow coefficients estimated in each "
+              "window), with Bayesian posteriors instead of single points.")
     body = "".join([
         f"<h1>Damper identification: data set {_e(repr(name))}</h1>",
         f'<p class="note">Written by bayesdamper {_e(__version__)} on {_e(stamp)}. Method: B. Titurus, '

@@ -220,7 +220,7 @@ def figure8_transients(results: Sequence, max_panels: int = 12, *, ncols: int = 
 
     Parameters
     ----------
-    results : sequence of bayesdamper.inference.stage2.TransientResult
+    results : sequence of bayesdamper.inference.stage2.WindowResult
         Each with ``time`` (absolute) [s], ``force`` [N], ``band`` shape (3, n_times) [N],
         ``ls_force`` [N] and ``entry`` (``id``, ``t_start_s``, ``J``, ``ls["J"]``, ``direction``,
         ``converged``).
@@ -363,4 +363,36 @@ def figure6_parametric(velocity: float = 1.5e-3, *, curves: Mapping | None = Non
     ax_p.set_title(f"(a) p_R varied, α_V = 1/{1 / c['fixed_alpha_v']:.3g}, V_P = {v:.3g} mm/s", fontsize=10)
     ax_a.set_title(f"(b) α_V varied, p_R = {c['fixed_p_r_Pa'] * PRESSURE_DISPLAY:.3g} MPa, "
                    f"V_P = {v:.3g} mm/s", fontsize=10)
+    return fig
+
+
+#: Longest stretch of a window shown against time [s] (the loops show all of it).
+LOOP_TIME_S = 5.0
+
+
+def window_loops(result, displacement: np.ndarray, velocity: np.ndarray, credible_mass: float = 0.9,
+                 title: str | None = None):
+    """A window of whole cycles against its posterior predictive: force against time (its first
+    ``LOOP_TIME_S``), force against displacement and force against velocity (the loops a test engineer reads),
+    measured in grey, the predictive median and band in colour, the least-squares fit dashed.
+
+    ``displacement`` [m] and ``velocity`` [m/s] at the window's samples (the reconstructed input's velocity).
+    """
+    t, f = result.time, result.force
+    lo, med, hi = result.band
+    fig = _figure((12.0, 3.6))
+    axes = fig.subplots(1, 3)
+    sel = t <= t[0] + LOOP_TIME_S
+    ax = axes[0]
+    ax.plot(t[sel], f[sel], color="0.6", lw=1.0, label="measured")
+    ax.fill_between(t[sel], lo[sel], hi[sel], color="C0", alpha=0.3, lw=0, label=f"{_pct(credible_mass)} band")
+    ax.plot(t[sel], med[sel], color="C0", lw=1.0, label="posterior predictive median")
+    ax.plot(t[sel], result.ls_force[sel], "--", color="C3", lw=0.8, label="least squares")
+    ax.set(xlabel="time [s]", ylabel="force [N]", title=title or f"{result.entry['id']}: J = {result.entry['J']:.3f}")
+    ax.legend(fontsize=7, loc="best")
+    for ax, x, lab in ((axes[1], 1e3 * np.asarray(displacement), "displacement [mm]"),
+                       (axes[2], 1e3 * np.asarray(velocity), "velocity [mm/s]")):
+        ax.plot(x, f, ".", color="0.6", ms=1.5, label="measured")
+        ax.plot(x, med, color="C0", lw=0.8, label="predictive median")
+        ax.set(xlabel=lab, ylabel="force [N]")
     return fig

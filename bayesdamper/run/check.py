@@ -7,29 +7,33 @@ from __future__ import annotations
 import time
 
 from bayesdamper.inference.pointfit import fit_point
-from bayesdamper.inference.problem import TransientProblem
-from bayesdamper.run.plan import TWO_STAGE, plan_dataset
+from bayesdamper.inference.problem import WindowProblem
+from bayesdamper.run.plan import plan_dataset
 from bayesdamper.run.stages import data_table
 
 
 def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str = "auto") -> None:
-    """``bayesdamper check``: validate, classify each record, then segment, stage 1 and the Nelder-Mead
-    stage 2 (two-stage mode) or the whole-record least-squares fit; print tables."""
+    """``bayesdamper check``: validate, classify and window each record; print the segmentation and stage 1 of the
+    triangular tests and the windows of the others, and (``fit``) a least-squares fit of every window; print
+    tables."""
     t0 = time.perf_counter()
     plan = plan_dataset(data_dir, tmax, mode)
     ds = plan.ds
     print(f"data set {ds.name!r}: {len(ds.records)} test(s), A_P = {ds.damper.piston_area:g} m^2, "
           f"V01 = {ds.damper.chamber_volume_1:g} m^3, V02 = {ds.damper.chamber_volume_2:g} m^3, "
           f"B0 = {ds.damper.liquid_bulk_modulus:g} Pa")
-    print(f"mode: {plan.mode} ({plan.mode_reason})")
+    print(f"plan: {plan.mode_reason}")
     for line in plan.describe():
         print(f"  {line}")
     print()
-    if plan.mode != TWO_STAGE:
-        _check_whole(plan, fit)
+    cycles = [w for w in plan.windows if w.kind == "cycles"]
+    if cycles:
+        _check_cycles(plan, cycles, fit)
+    if plan.static is None:
         print(f"\nchecked in {time.perf_counter() - t0:.1f} s")
         return
-    segs, transients, static = plan.segs, plan.transients, plan.static
+    segs, static = plan.segs, plan.static
+    transients = [w for w in plan.windows if w.kind != "cycles"]
     print(f"{len(transients)} transient(s)")
     hdr = f"{'test':<16}{'step':>5}  {'kind':<9}{'dir':>4}{'v [mm/s]':>10}{'t_step [s]':>12}" \
           f"{'F_step [N]':>12}{'plateau F [N]':>15}"
@@ -47,6 +51,9 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
         print("a plateau whose force still drifts (linear trend |t| > 3) is not a point of eq. (4): stage 1 "
               "leaves it out")
     print("stage 1, eq. (4) per direction (least squares, ±1 standard error):")
+    if static.constrained:
+        print(f"  held at 0 (the plateaus made them negative: an unzeroed load cell or a saturating force?): "
+              f"{', '.join(static.constrained)}")
     for f, lab in ((static.forward, "12"), (static.backward, "21")):
         se = f.standard_errors
         print(f"  C_L{lab} = {f.laminar:.4e} ± {se[0]:.1e} kg m^-4 s^-1   "
@@ -59,33 +66,36 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
               f"{'J':>9}")
         flow = static.coefficients
         for tr in transients:
-            pf = fit_point(TransientProblem.from_transient(tr, ds.damper, flow))
+            pf = fit_point(WindowProblem.from_window(tr, ds.damper, flow))
             print(f"  {tr.id:<22}{tr.kind:<9}{tr.direction:>+4d}{tr.velocity * 1e3:10.3f}"
                   f"{pf.alpha_v:11.2f}{pf.p_r:12.4g}{pf.cost:9.4f}")
     print(f"\nchecked in {time.perf_counter() - t0:.1f} s")
 
 
-def _check_whole(plan, fit: bool) -> None:
-    """The whole-record part of ``check``: the decimation of each record and its least-squares fit."""
+def _check_cycles(plan, windows, fit: bool) -> None:
+    """The windows of whole cycles: their span and input, and (``fit``) each one's least-squares fit of every
+    parameter (flow coefficients included where the data set has no plateaus)."""
     import numpy as np
 
-    from bayesdamper.inference.whole import WholeLogPosterior, WholeRecordProblem, WholeSpace, static_scales
-    from bayesdamper.inference.whole_stage import point_fit, quasi_static_start
-
-    print(f"{'record':<22}{'samples':>8}{'decim.':>7}{'rate [Hz]':>10}")
-    for w in plan.windows:
-        print(f"{w.id:<22}{w.time.size:>8}{w.decimation:>7}{w.rate_hz:>10.1f}")
+    print(f"{len(windows)} window(s) of whole cycles")
+    print(f"{'window':<24}{'t [s]':>16}{'cycles':>8}{'samples':>9}{'v_peak [mm/s]':>15}{'input noise [um]':>18}")
+    for w in windows:
+        inp = w.info.get("input") or {}
+        print(f"{w.id:<24}{w.t_step:8.2f}-{w.time[-1]:<7.2f}{w.info.get('cycles', float('nan')):8.2f}"
+              f"{w.time.size:9d}{w.velocity * 1e3:15.3f}{inp.get('noise_sd_m', float('nan')) * 1e6:18.2f}")
     if not fit:
         return
+    from bayesdamper.inference.joint import JointProblem, StageOnePrior
+    from bayesdamper.inference.plateau_noise import PlateauNoise
+    from bayesdamper.inference.start import least_squares_start
+
     print()
-    print("whole-record least squares on eq. (9) (all parameters at once):")
-    print(f"  {'record':<22}{'C_L12':>11}{'C_Q12':>11}{'C_L21':>11}{'C_Q21':>11}{'alpha_V':>9}{'p_R [Pa]':>11}"
+    print("least squares on eq. (9), every parameter of each window:")
+    print(f"  {'window':<24}{'C_L12':>11}{'C_Q12':>11}{'C_L21':>11}{'C_Q21':>11}{'alpha_V':>9}{'p_R [Pa]':>11}"
           f"{'J':>8}")
-    for w in plan.windows:
-        prob = WholeRecordProblem(w, plan.ds.damper)
-        ws = WholeSpace.build(static_scales(w, plan.ds.damper.piston_area), float(np.max(np.abs(w.force))))
-        lp = WholeLogPosterior(prob, ws)
-        flow4, off = quasi_static_start(prob, False)
-        x, j = point_fit(lp, off, flow4)
-        print(f"  {w.id:<22}" + "".join(f"{v:11.3e}" for v in x[:4]) + f"{np.exp(x[4]):9.1f}{np.exp(x[5]):11.4g}"
+    for w in windows:
+        jp = JointProblem.from_window(w, plan.ds.damper, StageOnePrior.flat(PlateauNoise(0.0, 1.0, 1, 0)))
+        x, j = least_squares_start(jp, jp.space())
+        print(f"  {w.id:<24}" + "".join(f"{v:11.3e}" for v in x[3:7]) + f"{np.exp(x[0]):9.1f}{np.exp(x[1]):11.4g}"
               f"{j:8.4f}")
+    print()

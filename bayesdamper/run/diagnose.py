@@ -1,5 +1,5 @@
 """The ``diagnose`` job: baseline, residual structure, candidate effects, the select-and-refit loop, the final
-model calibrated with uncertainty, and ``diagnosis.json`` with its figures.
+model calibrated with uncertainty, and ``diagnosis.json`` with its figures, on the windows of any data set.
 
 The computations live in :mod:`bayesdamper.diagnosis`; this module orders them, re-uses the baseline
 posteriors of an ``identify`` run of the same settings, and writes the results.
@@ -8,7 +8,6 @@ posteriors of an ``identify`` run of the same settings, and writes the results.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import time
 from pathlib import Path
@@ -17,35 +16,27 @@ import numpy as np
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.diagnosis.attribution import screening_subset
-from bayesdamper.diagnosis.candidates import pooled_j
+from bayesdamper.diagnosis.calibrated import (
+    baseline_residuals,
+    pooled_noise,
+    stage_one_for,
+    warm_start,
+    window_noise_dict,
+)
 from bayesdamper.diagnosis.engine import ProfileEngine
-from bayesdamper.diagnosis.loop import (
-    SELECT_DELTA_BIC,
-    FixedEffectsProblem,
-    _friction_corrected_static,
-    _residuals_at_medians,
-    calibrate_with,
-    report_text,
-    select_effects,
-)
-from bayesdamper.diagnosis.residual import (
-    SMOOTH_S,
-    STRUCTURE_ALPHA,
-    describe_residual,
-    plateau_noise,
-    structure_test,
-    summarise_structure,
-)
+from bayesdamper.diagnosis.loop import report_text, select_effects
+from bayesdamper.diagnosis.residual import describe_residual, structure_test, summarise_structure
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
+from bayesdamper.diagnosis.summary import GENERIC, summarise_diagnosis
 from bayesdamper.diagnosis.sysid import apply_law
 from bayesdamper.diagnosis.unnamed import FLOW_DRIVERS, library_candidates, unnamed_candidates
-from bayesdamper.inference.problem import LIKELIHOOD_RTOL, TransientProblem
+from bayesdamper.inference.problem import EffectsProblem
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.orifice import orifice_flow_and_slope
-from bayesdamper.physics.with_effects import STEPS_PER_SAMPLE, AugmentedProblem, effect_argument
+from bayesdamper.physics.with_effects import effect_argument
 from bayesdamper.run.outfolder import (
     POSTERIORS_DIR,
     _load_finished,
@@ -54,11 +45,15 @@ from bayesdamper.run.outfolder import (
     settings_fingerprint,
 )
 from bayesdamper.run.progress import Progress, count_files
-from bayesdamper.run.stages import drift_summary, identify_all
+from bayesdamper.run.stages import identify_all
 from bayesdamper.run.threads import one_blas_thread
 
-#: The generic effect: a candidate only with the structure the residual's signature found.
-GENERIC = "unnamed_dynamics"
+#: Step cap of the diagnosis's candidate search, per output sample: a solve needing more resolves motion faster
+#: than the sampling can show (RODAS4 takes some 20-30 steps per period of an undamped oscillation at rtol 1e-6,
+#: so 3 per sample is about a tenth of the sample rate; a chattering valve at an extreme trial value, say); it
+#: counts as a failed solve there instead of taking up to 100 000 steps (stiff, decaying modes cost few steps: the
+#: solver is L-stable). rig-A's final model takes 0.23 steps per sample.
+STEPS_PER_SAMPLE = 3
 #: Sampler of the final model's posteriors: the baseline's, with the independence proposal from a discarded DE
 #: pilot ("de+pilot") and checks every 50 steps (the same stopping rule, checked more often: with τ of a few steps
 #: the rule is met long before the next check 100 steps on). The effects' solves cost 20-50 times the eq. (7)
@@ -74,21 +69,22 @@ FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 50
 FINAL_WALKERS = 8
 
 
-def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str) -> list:
+def _reuse_baseline(out_dir: Path, transients, settings, tmax: float, seed: int, dataset_sha256: str,
+                    mode: str) -> list:
     """Baseline results stored by ``identify`` in ``out_dir/posteriors`` under the same settings
-    fingerprint (None where a transient has no such file)."""
+    fingerprint (None where a window has no such file)."""
     post_dir = out_dir / POSTERIORS_DIR
     if not post_dir.is_dir():
         return [None] * len(transients)
-    fp = settings_fingerprint(fingerprint_basis(settings.as_dict(), tmax, seed, dataset_sha256))
+    fp = settings_fingerprint(fingerprint_basis({**settings.as_dict(), "mode": mode}, tmax, seed, dataset_sha256))
     return [_load_finished(post_dir / f"{tr.id}.nc", tr, fp) for tr in transients]
 
 
-def _rms_ratio(transients, base_resid, base_model, area, flow, driver: str, law: str = "linear", eps: float = 0.0,
-               threshold: float = 0.0) -> float:
+def _rms_ratio(transients, base_resid, base_model, area, flows, driver: str, law: str = "linear",
+               eps: float = 0.0, threshold: float = 0.0) -> float:
     """rms of the residual over rms of the model signal ``driver`` through ``law`` [N per driver unit]."""
-    u = np.concatenate([model_signals(tr, fm, area, flow)[driver] for tr, fm in zip(transients, base_model,
-                                                                                    strict=True)])
+    u = np.concatenate([model_signals(tr, fm, area, fl)[driver]
+                        for tr, fm, fl in zip(transients, base_model, flows, strict=True)])
     g = apply_law(u, law, eps, threshold)
     r = np.concatenate(base_resid)
     den = float(np.sqrt(np.mean(g * g)))
@@ -112,34 +108,6 @@ def _test_speeds(transients) -> list[float]:
     return [float(np.median(by_test[tr.test])) for tr in transients]
 
 
-def pooled_j_ls(entries: list[dict], forces: list[np.ndarray]) -> float:
-    """Pooled eq. (9) J at each transient's least-squares optimum (``entry["ls"]["J"]``).
-
-    The reported J is at the posterior medians; under the AR(1) likelihood (φ near 1 on a smooth model error)
-    those weigh the residual's increments, not its level, and need not minimise eq. (9): this is the
-    figure the candidate search compares.
-    """
-    num = sum((e["ls"]["J"] ** 2) * float(f @ f) for e, f in zip(entries, forces, strict=True))
-    den = sum(float(f @ f) for f in forces)
-    return math.sqrt(num / den)
-
-
-def p_r_split(entries: list[dict]) -> dict:
-    """Median p_R of starts from rest and of reversals, and whether they agree.
-
-    They agree ("closes") when the medians differ by less than the median half-width of the per-transient
-    90 % intervals of log p_R: the split is then within what a single transient resolves.
-    """
-    kinds = {k: [e for e in entries if e["kind"] == k] for k in ("initial", "reversal")}
-    if not all(kinds.values()):
-        return {}
-    med = {k: float(np.median([e["p_R_Pa"]["median"] for e in v])) for k, v in kinds.items()}
-    half = float(np.median([0.5 * (np.log(e["p_R_Pa"]["hi"]) - np.log(e["p_R_Pa"]["lo"])) for e in entries]))
-    gap = abs(math.log(med["initial"] / med["reversal"]))
-    return {"initial_Pa": med["initial"], "reversal_Pa": med["reversal"], "log_ratio": gap,
-            "median_half_width_log": half, "agrees": bool(gap < half)}
-
-
 def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
     """Stage-2 settings of the final model's posteriors (:data:`FINAL_MOVE`, :data:`FINAL_WALKERS`)."""
     return dataclasses.replace(settings, sampler=dataclasses.replace(settings.sampler, move=FINAL_MOVE,
@@ -153,11 +121,10 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
                   max_steps: int | None = None, figures: bool = True, quiet: bool = False,
                   tests: list[str] | None = None, mode: str = "auto") -> dict:
     """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model (with one BLAS
-    thread per process: :mod:`bayesdamper.run.threads`).
+    thread per process: :mod:`bayesdamper.run.threads`), on the windows of any data set.
 
-    ``tests`` restricts the run to the named records (file stems) of the data set. ``mode`` as for
-    ``identify``: a data set that is not all triangular tests is diagnosed record by record as a whole
-    (:mod:`bayesdamper.run.diagnose_whole`).
+    ``tests`` restricts the run to the named records (file stems) of the data set; ``mode`` as for ``identify``
+    (:mod:`bayesdamper.run.plan`).
     """
 
     t0 = time.perf_counter()
@@ -166,176 +133,126 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
-    from bayesdamper.run.plan import WHOLE, plan_dataset
+    from bayesdamper.run.plan import plan_dataset
 
-    plan = plan_dataset(data_dir, tmax, mode)
-    if plan.mode == WHOLE:
-        from bayesdamper.run.diagnose_whole import run_whole_diagnosis
-
-        return run_whole_diagnosis(plan, out, seed=seed, effects=effects, workers=workers,
-                                   credible_mass=credible_mass, figures=figures, quiet=quiet, tests=tests)
-    with progress.phase("diagnose: load, segment, stage 1", unit="transient") as ph:
-        ds, segs, transients, static = plan.ds, plan.segs, plan.transients, plan.static
-        ph.done = len(transients)
+    with progress.phase("diagnose: load, windows, stage 1", unit="window") as ph:
+        plan = plan_dataset(data_dir, tmax, mode)
+        ds, segs, windows, static = plan.ds, plan.segs, plan.windows, plan.static
+        ph.done = len(windows)
     if tests:
-        missing = set(tests) - {s.record.name for s in segs}
+        missing = set(tests) - {w.test for w in windows}
         if missing:
             raise SettingsError(f"--tests: no record(s) named {', '.join(sorted(missing))} in {ds.path}")
         segs = tuple(s for s in segs if s.record.name in tests)
-        transients = [t for t in transients if t.test in tests]
+        windows = [w for w in windows if w.test in tests]
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     sampler = SamplerSettings() if max_steps is None else SamplerSettings(max_steps=max_steps)
     settings = StageTwoSettings(credible_mass=credible_mass, sampler=sampler)
     prov = {"dataset": ds.name, "input_sha256": ds.input_hashes(), "versions": versions(), "seed": seed}
-    noise = plateau_noise(segs)
+    flow0 = static.coefficients if static is not None else None
+    area = ds.damper.piston_area
 
     # 1. the calibrated baseline: re-used from `identify` posteriors in OUT of the same settings, if any
-    base = _reuse_baseline(out_dir, transients, settings, tmax, seed, ds.sha256)
+    base = _reuse_baseline(out_dir, windows, settings, tmax, seed, ds.sha256, plan.mode)
     todo = [i for i, r in enumerate(base) if r is None]
     if len(todo) < len(base):
         progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
-    with progress.phase("diagnose: eq. (7) baseline", total=len(todo), unit="transient"):
+    with progress.phase("diagnose: eq. (7) baseline", total=len(todo), unit="window"):
         from bayesdamper.inference.joint import StageOnePrior
         from bayesdamper.inference.plateau_noise import plateau_noise as plateau_ar1
 
-        prior = StageOnePrior.from_fit(static, plateau_ar1(segs)) if todo else None
-        fresh = identify_all([transients[i] for i in todo], ds.damper, static.coefficients, settings, seed,
-                             workers, None, prov, progress, prior=prior) if todo else []
+        prior = StageOnePrior.from_fit(static, plateau_ar1(segs)) if todo and static is not None else None
+        fresh = identify_all([windows[i] for i in todo], ds.damper, flow0, settings, seed, workers, None, prov,
+                             progress, prior=prior) if todo else []
         for i, r in zip(todo, fresh, strict=True):
             base[i] = r
         progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged, {len(base) - len(todo)} re-used")
-    base_problems = [TransientProblem.from_transient(tr, ds.damper, static.coefficients) for tr in transients]
-    base_resid = _residuals_at_medians(base, base_problems)
+    base_resid, base_flows = baseline_residuals(windows, base, ds.damper, flow0)
+    noises = [window_noise_dict(w, r.entry, segs) for w, r in zip(windows, base, strict=True)]
+    noise = pooled_noise(noises)
     rows = []
-    for tr, res, r in zip(transients, base, base_resid, strict=True):
-        rate = 1.0 / float(np.median(np.diff(tr.time)))
-        row = {"id": tr.id, "test": tr.test, "kind": tr.kind, "direction": tr.direction,
-               "velocity_m_s": tr.velocity, "J": res.entry["J"]}
-        row.update(structure_test(r, rate, noise))
-        row.update(describe_residual(tr.time - tr.t_step, r, tr.force, rate))
+    for w, res, r, nz in zip(windows, base, base_resid, noises, strict=True):
+        rate = 1.0 / float(np.median(np.diff(w.time)))
+        row = {"id": w.id, "test": w.test, "kind": w.kind, "direction": w.direction,
+               "velocity_m_s": w.velocity, "J": res.entry["J"]}
+        row.update(structure_test(r, rate, nz))
+        row.update(describe_residual(w.time - w.t_step, r, w.force, rate))
         rows.append(row)
     structure = summarise_structure(rows)
     # the residual's dynamic signature from the model's own signals (measured - model; base_resid is model - measured)
-    base_model = [tr.force + r for tr, r in zip(transients, base_resid, strict=True)]
+    base_model = [w.force + r for w, r in zip(windows, base_resid, strict=True)]
     with progress.phase("diagnose: residual dynamics", unit="fit"):
-        signature = residual_signature(transients, [-r for r in base_resid], base_model, ds.damper.piston_area,
-                                       static.coefficients, workers)
+        signature = residual_signature(windows, [-r for r in base_resid], base_model, area, base_flows, workers)
         progress.note(signature.get("summary") or signature.get("reason", ""))
     structure["parameters_by_kind_median"] = {
         kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
                for name in ("alpha_V", "p_R_Pa")}
-        for kind in ("initial", "reversal") if any(r.entry["kind"] == kind for r in base)}
+        for kind in ("initial", "reversal", "cycles") if any(r.entry["kind"] == kind for r in base)}
 
-    # 2. candidates: profile fits of shared effect parameters, (α_V, p_R) re-fitted per transient; the generic
+    # 2. candidates: profile fits of shared effect parameters, each window's own parameters re-fitted; the generic
     #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
     generic = not effects or GENERIC in effects
     names = library_candidates([n for n in names if n != GENERIC], signature)
     if generic:
-        dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / ds.damper.piston_area
-        c = static.coefficients.as_array()
+        dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / area
+        c = np.median([f.as_array() for f in base_flows], axis=0)
         slope = orifice_flow_and_slope(dp_typ, c[0], c[1], c[2], c[3])[1]
-        names += unnamed_candidates(signature, ds.damper.piston_area, float(slope),
-                                    _gain_scale(signature, transients, base_resid, base_model, ds.damper.piston_area,
-                                                static.coefficients),
-                                    {k: _rms_ratio(transients, base_resid, base_model, ds.damper.piston_area,
-                                                   static.coefficients, k) for k in FLOW_DRIVERS})
-    rec = {s.record.name: s for s in segs}
+        names += unnamed_candidates(signature, area, float(slope),
+                                    _gain_scale(signature, windows, base_resid, base_model, area, base_flows),
+                                    {k: _rms_ratio(windows, base_resid, base_model, area, base_flows, k)
+                                     for k in FLOW_DRIVERS})
     # the search caps a solve's steps (STEPS_PER_SAMPLE) at the problems' default tolerance (rtol 1e-6: at 1e-5
     # the reference inertance case of tests/test_confusion.py lost its only candidate); the final model is solved
-    # uncapped at the eq. (7) likelihood's tolerance (1e-5; ≤ 0.02 N from 1e-6 on rig-A's final model)
-    aug = [AugmentedProblem.from_segmented(rec[tr.test], tr, ds.damper, static.coefficients,
-                                           max_steps=STEPS_PER_SAMPLE * tr.time.size) for tr in transients]
-    warm = np.log([[r.entry["alpha_V"]["median"], r.entry["p_R_Pa"]["median"]] for r in base])
-    engine = ProfileEngine(aug, warm, workers, screen=screening_subset(_test_speeds(transients)))
+    # uncapped at the likelihood's tolerance
+    problems = [EffectsProblem.from_window(w, ds.damper, flow0, max_steps=STEPS_PER_SAMPLE * w.time.size)
+                for w in windows]
+    warm = [warm_start(p, r.entry, area) for p, r in zip(problems, base, strict=True)]
+    engine = ProfileEngine(problems, warm, workers, screen=screening_subset(_test_speeds(windows)))
     plateaus = [p for s in segs for p in s.plateaus]
+    static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
 
     def flow_for(e):
-        if "friction" in e and e["friction"].get("coulomb_N", 0.0) > 0:
-            return _friction_corrected_static(plateaus, ds.damper.piston_area, e["friction"]["coulomb_N"],
-                                              str(ds.path)).coefficients
-        return None
+        st = static_for(e)
+        return st.coefficients if st is not None else None
 
-    forces = [p.force for p in aug]
+    forces = [p.force for p in problems]
     with progress.phase("diagnose: candidate effects", unit="fit"):
         try:
             selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress,
-                                                     _test_speeds(transients))
+                                                     _test_speeds(windows))
         finally:
             engine.close()
         progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
 
-    # 3. the final model, calibrated with uncertainty like the baseline
+    # 3. the final model, calibrated with uncertainty like the baseline (the same likelihood, sampler and rules)
     if selected:
-        flow_final = flow_for(fixed) or static.coefficients
+        static_final = static_for(fixed) or static
+        flow_final = static_final.coefficients if static_final is not None else None
+        prior_final = (StageOnePrior.from_fit(static_final, plateau_ar1(segs)) if static_final is not None
+                       else None)
         eff = effect_argument(fixed)
-        final_problems = [FixedEffectsProblem(dataclasses.replace(a, flow=flow_final, rtol=LIKELIHOOD_RTOL,
-                                                                  max_steps=None), eff) for a in aug]
-        with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(transients),
-                            unit="transient"):
-            final = calibrate_with(transients, final_problems, ds.damper, flow_final, final_settings(settings),
-                                   seed, workers, progress)
+        with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(windows), unit="window"):
+            final = identify_all(windows, ds.damper, flow_final, final_settings(settings), seed, workers, None,
+                                 prov, progress, prior=prior_final, effects=eff)
             progress.note(f"{sum(r.entry['converged'] for r in final)} converged")
-        final_resid = _residuals_at_medians(final, final_problems)
+        final_resid, final_flows = baseline_residuals(windows, final, ds.damper, flow_final, eff)
     else:
-        final, final_resid = base, base_resid
+        final, final_resid, final_flows = base, base_resid, base_flows
     if "cross_correlation_before" in signature:
-        final_model = [tr.force + r for tr, r in zip(transients, final_resid, strict=True)]
+        final_model = [w.force + r for w, r in zip(windows, final_resid, strict=True)]
         signature["cross_correlation_after"] = residual_cross_correlation(
-            transients, [-r for r in final_resid], final_model, ds.damper.piston_area,
-            (flow_for(fixed) or static.coefficients) if selected else static.coefficients,
+            windows, [-r for r in final_resid], final_model, area, final_flows,
             signature["cross_correlation_before"]["driver"])
-    forces = [tr.force for tr in transients]
-    base_entries = [r.entry for r in base]
-    final_entries = [r.entry for r in final]
-    after_rows = []
-    for tr, r in zip(transients, final_resid, strict=True):
-        rate = 1.0 / float(np.median(np.diff(tr.time)))
-        after_rows.append(structure_test(r, rate, noise) | describe_residual(tr.time - tr.t_step, r, tr.force, rate)
-                          | {"id": tr.id, "velocity_m_s": tr.velocity, "direction": tr.direction, "kind": tr.kind})
-    per_velocity = {}
-    for v in sorted({round(tr.velocity, 6) for tr in transients}):
-        idx = [i for i, tr in enumerate(transients) if round(tr.velocity, 6) == v]
-        per_velocity[f"{v * 1e3:.2f}"] = {
-            "before": pooled_j([base_resid[i] for i in idx], [forces[i] for i in idx]),
-            "after": pooled_j([final_resid[i] for i in idx], [forces[i] for i in idx])}
-    diagnosis = {
-        "dataset": ds.name,
-        "noise_N": noise["sigma_N"],
-        "noise": noise,
-        "baseline": {"J_pooled": pooled_j(base_resid, forces), "J_pooled_ls": pooled_j_ls(base_entries, forces),
-                     "J": {e["id"]: e["J"] for e in base_entries}},
-        "candidates": rounds[0]["candidates"] if rounds else [],
-        "rounds": rounds,
-        "selected": selected,
-        "selected_params": fixed,
-        "final": {"J_pooled": pooled_j(final_resid, forces), "J_pooled_ls": pooled_j_ls(final_entries, forces),
-                  "J": {e["id"]: e["J"] for e in final_entries}},
-        "J_pooled_by_velocity_mm_s": per_velocity,
-        "p_R_split": {"before": p_r_split(base_entries), "after": p_r_split(final_entries)},
-        "drift_before": drift_summary(base_entries, credible_mass, seed),
-        "drift_after": drift_summary(final_entries, credible_mass, seed),
-        "structure_before": {"summary": structure, "transients": rows},
-        "residual_dynamics": signature,
-        "structure_after": {"summary": summarise_structure(after_rows), "transients": after_rows},
-        "criterion": {"name": "delta_BIC_eff", "select_at_or_below": SELECT_DELTA_BIC,
-                      "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs plateau noise, "
-                                        f"alpha {STRUCTURE_ALPHA}"},
-        "final_segments": final_entries,
-        "settings": settings.as_dict(), "final_settings": final_settings(settings).as_dict(), "seed": seed,
-        "effects_considered": [getattr(n, "label", n) for n in names],
-        "unnamed_candidates": [{"label": n.label, "structure": n.extra, "reading": n.reading,
-                                "search": {k: [v.lower, v.upper] for k, v in n.overrides.items()}}
-                               for n in names if not isinstance(n, str) and n.effect == GENERIC],
-        "search_starts": {n.label: n.starts for n in names if not isinstance(n, str) and n.starts},
-        "provenance": prov,
-    }
+    diagnosis = summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise, noises, rows,
+                                    structure, signature, rounds, selected, fixed, names, settings,
+                                    final_settings(settings), credible_mass, seed, prov)
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures
 
         with progress.phase("diagnose: figures", unit="file") as ph:
-            diagnosis["figures"] = write_diagnosis_figures(out_dir, transients, base, final, base_resid,
+            diagnosis["figures"] = write_diagnosis_figures(out_dir, windows, base, final, base_resid,
                                                            final_resid, diagnosis)
             ph.done = count_files(diagnosis["figures"])
     close_diagnosis(out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - t0, quiet)

@@ -1,7 +1,7 @@
 """Stage 2 on a Dask distributed cluster (``bayesdamper identify --scheduler ADDRESS``).
 
 The tasks are the same per-transient tasks the local process pool runs
-(:func:`bayesdamper.inference.stage2.identify_transient`); each carries its transient's data arrays, the
+(:func:`bayesdamper.inference.identify.identify_window`); each carries its transient's data arrays, the
 damper constants, the stage-1 coefficients, the settings and the run seed, so a worker needs only the
 ``bayesdamper`` package, not the data files. A worker writes the transient's NetCDF posterior into
 a private temporary folder and returns its bytes; the client writes them atomically into
@@ -58,16 +58,17 @@ def connect(address: str, timeout: float = CONNECT_TIMEOUT_S):
 
 
 def _remote_identify(task: tuple) -> tuple:
-    """Run one transient on a worker; return ``(TransientResult, NetCDF bytes or None)``."""
-    from bayesdamper.inference.stage2 import identify_transient
+    """Run one window on a worker; return ``(WindowResult, NetCDF bytes or None)``."""
+    from bayesdamper.inference.identify import identify_window
 
-    tr, damper, flow, settings, seed, nc, prov, draws, prior = task
+    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects = task
     if nc is None:
-        return identify_transient(tr, damper, flow, settings, seed, None, prov, static_draws=draws,
-                                  prior=prior), None
+        return identify_window(tr, damper, flow, settings, seed, None, prov, static_draws=draws,
+                               prior=prior, effects=effects), None
     with tempfile.TemporaryDirectory(prefix="bayesdamper-") as tmp:
         local = Path(tmp) / Path(nc).name
-        res = identify_transient(tr, damper, flow, settings, seed, local, prov, static_draws=draws, prior=prior)
+        res = identify_window(tr, damper, flow, settings, seed, local, prov, static_draws=draws, prior=prior,
+                              effects=effects)
         return res, local.read_bytes()
 
 

@@ -1,4 +1,5 @@
-"""The ``identify`` job: load -> segment -> stage 1 -> stage 2 -> outputs, for one or more data sets.
+"""The ``identify`` job: load -> windows (and stage 1 where there are plateaus) -> the posterior of every window ->
+outputs, for one or more data sets of any kind of record.
 
 Each function validates everything it can *before* it writes anything, so a run that fails on bad
 input leaves an existing output folder as it was. The output folder, its fingerprint and resume:
@@ -20,9 +21,10 @@ import numpy as np
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.inference.cut import COUPLINGS
+from bayesdamper.inference.drift import drift_summary
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings
-from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult
+from bayesdamper.inference.stage2 import StageTwoSettings, WindowResult
 from bayesdamper.run.outfolder import (
     _load_finished,
     check_output_folder,
@@ -31,9 +33,9 @@ from bayesdamper.run.outfolder import (
     open_run,
     settings_fingerprint,
 )
-from bayesdamper.run.plan import TWO_STAGE, WHOLE, check_mode, plan_dataset
+from bayesdamper.run.plan import check_mode, plan_dataset
 from bayesdamper.run.progress import Progress, count_files
-from bayesdamper.run.stages import data_table, drift_summary, identify_all
+from bayesdamper.run.stages import data_table, identify_all
 
 
 def _bounds(values, name: str) -> tuple[float, float] | None:
@@ -85,19 +87,16 @@ def _stage_two_settings(credible_mass, noise_model, alpha_v_prior, p_r_prior, ma
 
 def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: int, tmax: float,
           only: str | None, force: bool, mode: str = "auto") -> list[_Job]:
-    """Load, classify, segment and fit stage 1 (or prepare whole records) for every data set; check the
-    output folders. Writes nothing."""
+    """Load, classify and window every data set (stage 1 where there are plateaus); check the output folders.
+    Writes nothing."""
     plans = [plan_dataset(d, tmax, mode) for d in data_dirs]
-    prepared = [(p.ds, p.segs, p.transients if p.mode == TWO_STAGE else p.windows, p.static) for p in plans]
+    prepared = [(p.ds, p.segs, p.windows, p.static) for p in plans]
     if only:
         wanted = {s.strip() for s in only.split(",") if s.strip()}
         unknown = wanted - {t.id for p in prepared for t in p[2]}
         if unknown:
-            raise SettingsError(f"--only: unknown segment id(s) {', '.join(sorted(unknown))}")
+            raise SettingsError(f"--only: unknown window id(s) {', '.join(sorted(unknown))}")
         prepared = [(ds, segs, [t for t in trs if t.id in wanted], st) for ds, segs, trs, st in prepared]
-        for p, (_, _, trs, _) in zip(plans, prepared, strict=True):
-            if p.mode == WHOLE:
-                p.windows = trs
     out_root = Path(out)
     if out_root.exists() and not out_root.is_dir():
         raise SettingsError(f"{out_root}: exists and is not a folder")
@@ -115,14 +114,13 @@ def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: in
     for (ds, segs, trs, static), out_dir, p in zip(prepared, outs, plans, strict=True):
         if not trs:
             continue
-        sd = settings.as_dict() if p.mode == TWO_STAGE else {**settings.as_dict(), "mode": WHOLE}
-        basis = fingerprint_basis(sd, tmax, seed, ds.sha256)
+        basis = fingerprint_basis({**settings.as_dict(), "mode": p.mode}, tmax, seed, ds.sha256)
         check_output_folder(out_dir, basis, force)
         jobs.append(_Job(ds, segs, trs, static, out_dir, basis, settings_fingerprint(basis), p))
     if not jobs:
-        raise SettingsError("no transient to identify")
+        raise SettingsError("no window to identify")
     for p in plans:  # only once every input is valid: a bad run prints one line
-        print(f"{p.ds.name}: mode {p.mode} ({p.mode_reason})", file=sys.stderr, flush=True)
+        print(f"{p.ds.name}: {p.mode_reason}", file=sys.stderr, flush=True)
     return jobs
 
 
@@ -133,51 +131,48 @@ def _now() -> str:
 def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_mass: float, tmax: float,
                   workers: int, figures: bool, force: bool, client, scheduler: str | None,
                   progress: Progress) -> dict:
-    """Stage 2 and the outputs of one validated data set (the only step that writes)."""
-    if job.plan is not None and job.plan.mode == WHOLE:
-        from bayesdamper.run.identify_whole import identify_whole_job
-
-        return identify_whole_job(job, settings, seed=seed, credible_mass=credible_mass, workers=workers,
-                                  figures=figures, force=force, progress=progress, now=_now)
+    """The posteriors and the outputs of one validated data set (the only step that writes)."""
     t0 = time.perf_counter()
-    ds, out_dir = job.ds, job.out_dir
+    ds, out_dir, static = job.ds, job.out_dir, job.static
     post_dir, prov, run = open_run(job, settings, seed=seed, workers=workers, force=force, progress=progress,
-                                   started_utc=_now(), mode=TWO_STAGE, prov_extra={"tmax_s": tmax},
+                                   started_utc=_now(), mode=job.plan.mode, prov_extra={"tmax_s": tmax},
                                    run_extra={"tmax_s": tmax, "scheduler": scheduler,
-                                              "transients": [t.id for t in job.transients]})
+                                              "windows": [t.id for t in job.transients]})
 
-    results: list[TransientResult | None] = [
+    results: list[WindowResult | None] = [
         _load_finished(post_dir / f"{tr.id}.nc", tr, job.fingerprint) for tr in job.transients]
     resumed = [tr.id for tr, r in zip(job.transients, results, strict=True) if r is not None]
     if resumed:
-        print(f"resumed {len(resumed)} finished transient(s) from {post_dir}", file=sys.stderr, flush=True)
+        print(f"resumed {len(resumed)} finished window(s) from {post_dir}", file=sys.stderr, flush=True)
     todo = [i for i, r in enumerate(results) if r is None]
-    progress(f"stage 1 done; sampling {len(todo)} transient(s) on "
+    progress(f"sampling {len(todo)} window(s) on "
              + (f"the cluster at {scheduler}" if client is not None else f"{workers} worker(s)"))
     from bayesdamper.inference.joint import StageOnePrior, plateau_noise
     from bayesdamper.inference.stage2 import N_STATIC_DRAWS, STATIC_NEGLIGIBLE_RATIO
 
     prior = None
     draws = None
-    if settings.propagate:
+    flow = static.coefficients if static is not None else None
+    if static is not None and settings.propagate:
         noise = plateau_noise(job.segs)
-        prior = StageOnePrior.from_fit(job.static, noise)
+        prior = StageOnePrior.from_fit(static, noise)
         progress(f"plateau noise: AR(1) φ {noise.phi:.3f}, σ {noise.sigma:.1f} N "
                  f"({noise.n_plateaus} plateaus, {noise.n_samples} samples)")
-    else:
-        draws = job.static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
-    with progress.phase(f"stage 2 ({ds.name}): sampling", total=len(todo), unit="transient"):
-        fresh = identify_all([job.transients[i] for i in todo], ds.damper, job.static.coefficients, settings,
-                             seed, workers, post_dir, prov, progress, draws, client=client, prior=prior)
+    elif static is not None:
+        draws = static.sample(N_STATIC_DRAWS, np.random.default_rng(seed))
+    with progress.phase(f"posteriors ({ds.name})", total=len(todo), unit="window"):
+        fresh = identify_all([job.transients[i] for i in todo], ds.damper, flow, settings, seed, workers, post_dir,
+                             prov, progress, draws, client=client, prior=prior)
         progress.note(f"{sum(r.entry['converged'] for r in fresh)} converged"
                       + (f", {len(resumed)} resumed" if resumed else ""))
     for i, r in zip(todo, fresh, strict=True):
         results[i] = r
     entries = [r.entry for r in results]
     summary = {
-        "dataset": ds.name, "mode": TWO_STAGE, "credible_mass": credible_mass,
-        "plan": job.plan.as_dict() if job.plan else None,
-        "static": job.static.intervals(credible_mass),
+        "dataset": ds.name, "mode": job.plan.mode, "mode_reason": job.plan.mode_reason,
+        "credible_mass": credible_mass, "plan": job.plan.as_dict(),
+        "static": static.intervals(credible_mass) if static is not None else None,
+        "static_constrained": static.constrained if static is not None else [],
         "segments": entries,
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
@@ -191,10 +186,10 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                        "coefficients (stage 1, moment-matched Student-t per direction) keep their own posteriors "
                        "and move α_V, p_R along the window optimum's sensitivity"
                        if settings.coupling == "cut" else
-                       "propagated jointly: the four flow coefficients are sampled in every transient's posterior "
+                       "propagated jointly: the four flow coefficients are sampled in every window's posterior "
                        "under the stage-1 posterior (Student-t per direction) as prior, with the step's Δp"),
             "coupling": settings.coupling, "propagated": True}
-    else:
+    elif static is not None:
         ratios = np.array([[e["static_sensitivity"]["ratio"][k] for k in ("alpha_V", "p_R_Pa")]
                            for e in entries])
         summary["static_uncertainty"] = {
@@ -207,15 +202,20 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
             "threshold": STATIC_NEGLIGIBLE_RATIO,
             "negligible": bool(all(e["static_sensitivity"]["negligible"] for e in entries)),
             "propagated": False}
+    else:
+        summary["static_uncertainty"] = {
+            "method": "no plateaus: the flow coefficients are sampled in every window with α_V, p_R and the start's "
+                      "Δp (flat prior); the noise of each window is estimated from its least-squares residual "
+                      "away from the excitation's band and harmonics", "propagated": True, "coupling": "joint"}
     if figures:
         from bayesdamper.report.figures import write_identify_figures
 
         with progress.phase(f"figures ({ds.name})", unit="file") as ph:
-            summary["figures"] = write_identify_figures(out_dir, ds, job.segs, job.static, results, summary,
-                                                        workers=workers)
+            summary["figures"] = write_identify_figures(out_dir, ds, job.segs, static, results, summary,
+                                                        workers=workers, windows=job.transients)
             ph.done = count_files(summary["figures"])
     close_run(out_dir, summary, run, wall=time.perf_counter() - t0, finished_utc=_now(), resumed=resumed,
-              computed=[job.transients[i].id for i in todo], units="transient(s)")
+              computed=[job.transients[i].id for i in todo], units="window(s)")
     return summary
 
 
@@ -261,11 +261,10 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
                                    coupling)
     progress = Progress()
     check_mode(mode)
-    with progress.phase("load, classify, segment, stage 1", unit="data set") as ph:
+    with progress.phase("load, classify, windows, stage 1", unit="data set") as ph:
         jobs = _plan(dirs, out, settings, seed, tmax, only, force, mode)
         ph.done = len(jobs)
-        ph.note = ", ".join(f"{len(j.transients)} {'transients' if j.plan.mode == TWO_STAGE else 'records'}"
-                            for j in jobs)
+        ph.note = ", ".join(f"{len(j.transients)} windows" for j in jobs)
     workers = workers if workers > 0 else (os.cpu_count() or 1)
     client = None
     if scheduler:

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.inference.stage2 import TransientResult
+from bayesdamper.inference.stage2 import WindowResult
 from bayesdamper.report.figures import FIGURES_DIR
 from bayesdamper.report.html import REPORT_FILE
 
@@ -209,10 +209,10 @@ def read_finished(path: Path, unit_id: str, fingerprint: str) -> dict | None:
     return s
 
 
-def _load_finished(path: Path, transient, fingerprint: str) -> TransientResult | None:
+def _load_finished(path: Path, transient, fingerprint: str) -> WindowResult | None:
     """The stored result of ``transient`` if ``path`` holds it under ``fingerprint``, else None."""
     s = read_finished(path, transient.id, fingerprint)
     if s is None:
         return None
-    return TransientResult(s["attrs"]["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"],
+    return WindowResult(s["attrs"]["entry"], s["names"], s["chains"], s["time"], s["force"], s["band"],
                            s["ls_force"])

@@ -1,10 +1,17 @@
-"""What a data set is and what will be done with it: the identification mode, chosen from the data.
+"""What a data set is and how it will be cut into windows: one plan for every kind of record.
 
-Every record is classified from its displacement (:mod:`bayesdamper.io.recordkind`) and checked for
-flat, clipped, too short or implausible channels. A data set whose records are all triangular tests is
-identified by the paper's two stages (plateaus, then transients); any other (sine, sweep, multisine,
-random, or a mix) is identified record by record as a whole (:mod:`bayesdamper.inference.whole`). The
-mode can be forced; it is printed and stored with the results.
+Every record is classified from its displacement (:mod:`bayesdamper.io.recordkind`) and checked for flat,
+clipped, too short or implausible channels. Each then becomes windows (:class:`bayesdamper.io.windows.Window`):
+
+* a triangular test is segmented (:mod:`bayesdamper.io.segmentation`): one transient after every velocity step,
+  and its plateaus, which give stage 1 (the flow coefficients of eq. (4)) for every window of the data set;
+* any other record (sine, sweep, multisine, random) has its displacement reconstructed into a smooth input
+  (:mod:`bayesdamper.io.reconstruct`) and is cut into windows of whole cycles (:func:`~bayesdamper.io.windows.
+  cycle_windows`); with no plateaus in the data set, the flow coefficients are estimated in each window.
+
+``--mode two-stage`` insists that every record be a triangular test; ``--mode whole-record`` cuts every record,
+triangular tests included, into cycle windows (no stage 1); ``auto`` (default) does each record as its kind
+says. The plan is printed and stored with the results.
 """
 
 from __future__ import annotations
@@ -13,22 +20,37 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.inference.plateau_noise import settled_plateaus
+from bayesdamper.inference.stage1 import fit_static
 from bayesdamper.io.dataset import check_duration, load_dataset
 from bayesdamper.io.recordkind import inspect_record
-from bayesdamper.io.wholerecord import record_window
+from bayesdamper.io.segmentation import segment_dataset
 
 #: Identification modes accepted by ``--mode``.
 MODES = ("auto", "two-stage", "whole-record")
-TWO_STAGE, WHOLE = "two-stage", "whole-record"
+AUTO, TWO_STAGE, WHOLE = "auto", "two-stage", "whole-record"
 
 
 @dataclass
 class DataPlan:
-    """A validated data set, the kind of each record and the mode; nothing written yet.
+    """A validated data set cut into windows; nothing written yet.
 
-    For the two-stage mode ``segs``, ``transients`` and ``static`` are those of
-    :func:`bayesdamper.run.stages.prepare`; for the whole-record mode ``windows`` holds one
-    :class:`~bayesdamper.io.wholerecord.RecordWindow` per record.
+    Attributes
+    ----------
+    ds : Dataset
+    mode : str
+        ``--mode`` as given.
+    mode_reason : str
+        One line: how the records were windowed.
+    kinds : list of RecordKind
+    segs : tuple of SegmentedRecord
+        The segmented triangular tests (their plateaus give stage 1).
+    windows : list of Window
+        Every window, in record order.
+    static : StaticFit or None
+        Stage 1 from the plateaus (None without triangular tests).
+    inputs : dict
+        Per cycle-windowed record: how its input was reconstructed (JSON-safe).
     """
 
     ds: object
@@ -36,21 +58,34 @@ class DataPlan:
     mode_reason: str
     kinds: list
     segs: tuple = ()
-    transients: list = field(default_factory=list)
-    static: object = None
     windows: list = field(default_factory=list)
+    static: object = None
+    inputs: dict = field(default_factory=dict)
+
+    @property
+    def transients(self) -> list:
+        """Every window (the name the stage-2 code uses for its units of work)."""
+        return self.windows
 
     def describe(self) -> list[str]:
         """One line per record: its name, what it is and what will be done with it."""
-        what = "segmented into transients (stage 1 + stage 2)" if self.mode == TWO_STAGE else \
-            "identified as a whole record"
-        return [f"{k.name}: {k.description} -> {what}" for k in self.kinds]
+        n = {}
+        for w in self.windows:
+            n[w.test] = n.get(w.test, 0) + 1
+        seg = {s.record.name for s in self.segs}
+        out = []
+        for k in self.kinds:
+            what = (f"segmented: {n.get(k.name, 0)} transient(s) and plateaus (stage 1)" if k.name in seg else
+                    f"{n.get(k.name, 0)} window(s) of whole cycles")
+            out.append(f"{k.name}: {k.description} -> {what}")
+        return out
 
     def as_dict(self) -> dict:
         return {"mode": self.mode, "mode_reason": self.mode_reason,
                 "records": [{"name": k.name, "kind": k.kind, "description": k.description,
                              "details": k.details} for k in self.kinds],
-                "windows": [w.as_dict() for w in self.windows]}
+                "windows": [w.as_dict() for w in self.windows],
+                "stage1": self.static is not None, "inputs": self.inputs}
 
 
 def check_mode(mode: str) -> str:
@@ -59,43 +94,75 @@ def check_mode(mode: str) -> str:
     return mode
 
 
-def choose_mode(kinds: list, forced: str) -> tuple[str, str]:
-    """The mode and why: forced, or two-stage when most records are triangular tests (a data set of
-    triangular tests with a stray record is refused by :func:`plan_dataset`, naming the record)."""
-    if forced != "auto":
-        return forced, "forced by --mode"
-    other = [k for k in kinds if k.kind != "triangular"]
-    if not other:
-        return TWO_STAGE, "every record is a triangular test"
-    if 2 * len(other) < len(kinds):
-        return TWO_STAGE, "most records are triangular tests"
-    names = ", ".join(f"{k.name} ({k.kind})" for k in other[:3]) + (" ..." if len(other) > 3 else "")
-    return WHOLE, f"not every record is a triangular test: {names}"
+def _cycle_windows(ds, record, kind) -> tuple[list, dict]:
+    from bayesdamper.io.reconstruct import reconstruct_input
+    from bayesdamper.io.windows import cycle_windows
+    from bayesdamper.physics.excitation import PiecewisePolynomial
+
+    try:
+        rec = reconstruct_input(record.time, record.displacement, velocity=getattr(record, "velocity", None))
+    except DataError as err:
+        raise DataError(f"{record.path}: {err}") from None
+    restart = [True] + [False] * (rec.breaks.size - 2) + [True]
+    drive = PiecewisePolynomial(rec.breaks, rec.coefs, restart)
+    summary = rec.as_dict()
+    windows = cycle_windows(record, kind.kind, kind.details, drive, float(rec.velocity_error_m_s),
+                            ds.damper.piston_area, summary)
+    return windows, summary
 
 
-def plan_dataset(data_dir: str | Path, tmax: float, mode: str = "auto") -> DataPlan:
-    """Load, validate and classify a data set, choose the mode and prepare it. Raises on bad input."""
-    from bayesdamper.run.stages import prepare_loaded
+def segment_and_fit(ds, records, tmax: float):
+    """Segment the triangular tests ``records`` of a data set and fit stage 1 on their settled plateaus:
+    ``(segs, static)``."""
+    import dataclasses
 
+    sub = dataclasses.replace(ds, records=tuple(records)) if len(records) != len(ds.records) else ds
+    segs = segment_dataset(sub, tmax=tmax)
+    try:  # stage 1 and the noise take only plateaus whose force has settled
+        segs, _ = settled_plateaus(segs)
+    except ValueError:  # no plateau with scatter: fit_static says what is wrong
+        pass
+    plateaus = [p for s in segs for p in s.plateaus]
+    static = fit_static(plateaus, source=str(ds.path))
+    try:  # validated here, before any job writes
+        static.coefficients  # noqa: B018
+    except SettingsError as err:
+        raise DataError(f"{ds.path}: stage 1 from the plateaus gives {err}") from None
+    return segs, static
+
+
+def plan_dataset(data_dir: str | Path, tmax: float, mode: str = AUTO) -> DataPlan:
+    """Load, validate and classify a data set and cut every record into windows. Raises on bad input."""
     check_mode(mode)
     ds = load_dataset(data_dir, tmax=None)
     kinds = [inspect_record(r) for r in ds.records]  # checked (raises on a bad record) and classified
-    chosen, reason = choose_mode(kinds, mode)
-    if chosen == TWO_STAGE:
-        not_tri = [k for k in kinds if k.kind != "triangular"]
-        if not_tri:
-            k = not_tri[0]
-            n_tri = len(kinds) - len(not_tri)
-            if mode == "auto":
-                raise DataError(f"{ds.record(k.name).path}: is not a triangular test like the other {n_tri} "
-                                f"record(s) of the data set (it reads as: {k.description}; truncated?): remove it "
-                                "or use --mode whole-record")
-            raise DataError(f"{ds.record(k.name).path}: is not a triangular test (it reads as: {k.description}): "
-                            "the two-stage method needs plateaus and velocity steps (use --mode auto or whole-record)")
-        for r in ds.records:
-            check_duration(r.path, r.duration, tmax)
-        segs, transients, static = prepare_loaded(ds, tmax)
-        return DataPlan(ds, chosen, reason, kinds, segs, transients, static)
-    windows = [record_window(r, kind=k.kind, description=k.description)
-               for r, k in zip(ds.records, kinds, strict=True)]
-    return DataPlan(ds, chosen, reason, kinds, windows=windows)
+    triangular = [k.kind == "triangular" for k in kinds]
+    if mode == TWO_STAGE and not all(triangular):
+        k = kinds[triangular.index(False)]
+        raise DataError(f"{ds.record(k.name).path}: is not a triangular test (it reads as: {k.description}): "
+                        "the two-stage method needs plateaus and velocity steps (use --mode auto or whole-record)")
+    segment = [t and mode != WHOLE for t in triangular]
+    seg_records = [r for r, s in zip(ds.records, segment, strict=True) if s]
+    for r in seg_records:
+        check_duration(r.path, r.duration, tmax)
+    segs, static = segment_and_fit(ds, seg_records, tmax) if seg_records else ((), None)
+    by_name = {s.record.name: s for s in segs}
+    windows, inputs = [], {}
+    for r, k, s in zip(ds.records, kinds, segment, strict=True):
+        if s:
+            windows += list(by_name[r.name].transients)
+        else:
+            w, summary = _cycle_windows(ds, r, k)
+            windows += w
+            inputs[r.name] = summary
+    n_seg, n_cyc = len(seg_records), len(ds.records) - len(seg_records)
+    if mode == WHOLE:
+        reason = "forced by --mode whole-record: every record cut into windows of whole cycles, no stage 1"
+    elif n_cyc == 0:
+        reason = "every record is a triangular test: transients after the velocity steps, stage 1 from the plateaus"
+    elif n_seg == 0:
+        reason = "no triangular test: every record cut into windows of whole cycles, flow coefficients per window"
+    else:
+        reason = (f"{n_seg} triangular test(s) segmented (stage 1 from their plateaus for every window), "
+                  f"{n_cyc} other record(s) cut into windows of whole cycles")
+    return DataPlan(ds, mode, reason, kinds, tuple(segs), windows, static, inputs)

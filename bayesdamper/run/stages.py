@@ -1,5 +1,6 @@
-"""The steps every job shares: load -> segment -> stage 1 (``prepare``), stage 2 over many transients on
-worker processes (``identify_all``), drift with speed, and the table that describes a data set.
+"""The steps every job shares: segmentation and stage 1 of the triangular tests (``segment_and_fit``), the
+posterior of every window on worker processes (``identify_all``), drift with speed, and the table that describes
+a data set.
 """
 
 from __future__ import annotations
@@ -12,46 +13,31 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesdamper.core.errors import DataError, SettingsError
-from bayesdamper.inference.drift import fit_drift
+from bayesdamper.inference.identify import identify_window
 from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
-from bayesdamper.inference.plateau_noise import settled_plateaus
-from bayesdamper.inference.problem import TransientProblem
-from bayesdamper.inference.stage1 import fit_static
-from bayesdamper.inference.stage2 import StageTwoSettings, TransientResult, identify_transient
-from bayesdamper.io.dataset import load_dataset
-from bayesdamper.io.segmentation import segment_dataset
+from bayesdamper.inference.problem import WindowProblem
+from bayesdamper.inference.stage2 import StageTwoSettings, WindowResult
 from bayesdamper.run.progress import Progress
 
 
 def prepare(data_dir: str | Path, tmax: float):
-    """Load, validate and segment a triangular-test data set; fit stage 1. Raises DataError on bad input."""
-    ds = load_dataset(data_dir, tmax=tmax)
-    return (ds, *prepare_loaded(ds, tmax))
+    """Load, validate and segment a data set of triangular tests and fit stage 1: ``(ds, segs, transients,
+    static)``. Raises DataError on bad input (a record that is not a triangular test included)."""
+    from bayesdamper.run.plan import TWO_STAGE, plan_dataset
+
+    plan = plan_dataset(data_dir, tmax, TWO_STAGE)
+    return plan.ds, plan.segs, plan.windows, plan.static
 
 
-def prepare_loaded(ds, tmax: float):
-    """Segment a loaded data set and fit stage 1: ``(segs, transients, static)``."""
-    segs = segment_dataset(ds, tmax=tmax)
-    try:  # stage 1 and the noise take only plateaus whose force has settled
-        segs, _ = settled_plateaus(segs)
-    except ValueError:  # no plateau with scatter: fit_static says what is wrong
-        pass
-    transients = [t for s in segs for t in s.transients]
-    plateaus = [p for s in segs for p in s.plateaus]
-    static = fit_static(plateaus, source=str(ds.path))
-    try:  # validated here, before any job writes: stage 2 cannot run on coefficients eq. (8) cannot have
-        static.coefficients  # noqa: B018
-    except SettingsError as err:
-        raise DataError(f"{ds.path}: stage 1 from the plateaus gives {err}: the static force-velocity "
-                        "characteristic does not follow the orifice law eq. (8) (does the force saturate "
-                        "with speed? try --mode whole-record, whose diagnosis reports it)") from None
-    return segs, transients, static
+def _worker(args) -> WindowResult:
+    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects = args
+    return identify_window(tr, damper, flow, settings, seed, nc, prov, static_draws=draws, prior=prior,
+                           effects=effects)
 
 
-def _worker(args) -> TransientResult:
-    tr, damper, flow, settings, seed, nc, prov, draws, prior = args
-    return identify_transient(tr, damper, flow, settings, seed, nc, prov, static_draws=draws, prior=prior)
+def _prior_of(prior, i: int):
+    """The prior of the ``i``-th window: one for all, or one per window."""
+    return prior[i] if isinstance(prior, list | tuple) else prior
 
 
 def _pool(workers: int):
@@ -66,36 +52,41 @@ def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings, prior=N
     process. Run before a pool of worker processes starts, so the cache exists and forked workers
     inherit the compiled code instead of each compiling it again.
     """
+    from bayesdamper.inference import joint
+    from bayesdamper.inference.plateau_noise import PlateauNoise
+
     t0 = time.perf_counter()
-    problem = TransientProblem.from_transient(transient, damper, flow)
     space = settings.space()
     centre = (space.lower + space.upper) / 2
-    LogPosterior(problem, make_noise_model(settings.noise_model), space).batch(centre[None, :])
-    problem.simulate_force(*space.to_physical(centre[None, :])[0, :2])
-    if prior is not None and settings.propagate:
-        from bayesdamper.inference import joint
-
-        jp = joint.JointProblem.from_transient(transient, damper, prior)
-        js = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
-        joint.JointLogPosterior(jp, js).batch(((js.lower + js.upper) / 2)[None, :])
+    if flow is not None:
+        problem = WindowProblem.from_window(transient, damper, flow)
+        LogPosterior(problem, make_noise_model(settings.noise_model), space).batch(centre[None, :])
+        problem.simulate_force(*space.to_physical(centre[None, :])[0, :2])
+    if prior is None:
+        prior = joint.StageOnePrior.flat(PlateauNoise(0.0, 1.0, 1, 0))
+    jp = joint.JointProblem.from_window(transient, damper, prior)
+    js = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
+    joint.JointLogPosterior(jp, js).batch(((js.lower + js.upper) / 2)[None, :])
     return time.perf_counter() - t0
 
 
 def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int, workers: int,
                  posterior_dir: Path | None, provenance: dict, progress: Progress,
-                 static_draws: np.ndarray | None = None, *, client=None, prior=None) -> list[TransientResult]:
+                 static_draws: np.ndarray | None = None, *, client=None, prior=None,
+                 effects=None) -> list[WindowResult]:
     """Stage 2 for every transient, on ``workers`` processes or a Dask cluster; results in input order.
 
     ``prior`` (a :class:`~bayesdamper.inference.joint.StageOnePrior`) makes every posterior the joint one
     (flow coefficients and step Δp sampled). ``static_draws`` (rows of [C_L12, C_Q12, C_L21, C_Q21] from
     stage 1) switch on, for conditional posteriors, the check of how much the stage-1 uncertainty moves each
     transient's optimum. ``client`` (a connected ``dask.distributed.Client``) sends the tasks to its cluster
-    instead of the local pool.
+    instead of the local pool. ``effects`` (a :class:`~bayesdamper.physics.compose.ComposedEffects`) adds effects
+    to every window's model, held at their values.
     """
     tasks = [(tr, damper, flow, settings, seed,
-              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws, prior)
-             for tr in transients]
-    def report(i: int, res: TransientResult, done: int) -> None:
+              None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws,
+              _prior_of(prior, i), effects) for i, tr in enumerate(transients)]
+    def report(i: int, res: WindowResult, done: int) -> None:
         e = res.entry
         state = "converged" if e["converged"] else "NOT converged"
         progress(f"[{done}/{len(tasks)}] {e['id']}: {state}, R-hat {e['rhat_max']:.3f}, "
@@ -111,7 +102,8 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
     if workers > 1 and len(tasks) > 1:
         # Compile (or load) the numba kernels once here: forked workers inherit them, and the on-disk
         # cache exists for spawned ones, instead of every worker compiling the same code at once.
-        progress(f"numba kernels ready in {warm_up_kernels(transients[0], damper, flow, settings, prior):.1f} s")
+        ready = warm_up_kernels(transients[0], damper, flow, settings, _prior_of(prior, 0))
+        progress(f"numba kernels ready in {ready:.1f} s")
     return run_tasks(_worker, tasks, workers, report, before=lambda task: progress(f"sampling {task[0].id} ..."))
 
 
@@ -138,31 +130,6 @@ def run_tasks(worker, tasks: list, workers: int, report, before=None) -> list:
             ex.shutdown(wait=True, cancel_futures=True)
             raise
     return results
-
-
-def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
-    """Slope of α_V and p_R against piston speed over the converged transients not piled against a prior bound
-    (and per direction)."""
-    out = {}
-    # converged posteriors that the data determine: one piled against a prior bound (rig-A's slow reversals, whose
-    # α_V-p_R ridge runs into the 10 MPa bound) has a mean set by the prior box, not by the test
-    # (each choice only if it leaves the three transients at two speeds a trend needs)
-    choices = ([e for e in entries if e["converged"] and not (e.get("shape") or {}).get("at_prior_bound")],
-               [e for e in entries if e["converged"]], entries)
-    ok = next(c for c in choices if len(c) >= 3 and len({e["velocity_m_s"] for e in c}) >= 2 or c is entries)
-    for name in ("alpha_V", "p_R_Pa"):
-        v = np.array([e["velocity_m_s"] for e in ok])
-        m = np.array([e["posterior_mean"][name] for e in ok])
-        s = np.array([e["posterior_sd"][name] for e in ok])
-        res = fit_drift(v, m, s, credible_mass, seed)
-        res["by_direction"] = {}
-        for d in (1, -1):
-            sel = np.array([e["direction"] == d for e in ok])
-            if sel.sum() >= 3 and np.ptp(v[sel]) > 0:
-                res["by_direction"][str(d)] = fit_drift(v[sel], m[sel], s[sel], credible_mass, seed)
-        res["n_transients"] = int(len(ok))
-        out[name] = res
-    return out
 
 
 def data_table(ds, segs) -> dict:

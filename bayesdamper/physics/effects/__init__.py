@@ -4,9 +4,7 @@ Each module defines ``EFFECT``, an :class:`Effect` naming the effect's parameter
 bounds, default strength, the value that switches it off), its extra states and the numba hooks that say
 where it acts (protocol: :mod:`bayesdamper.physics.effects.signals`). The registry is every module of
 this package that defines ``EFFECT``: adding an effect is adding a module. Any combination of effects
-runs on the composed kernel (:mod:`bayesdamper.physics.compose`); the first six (the ``slot`` of their
-parameters places them in the fixed effect vector) also have the hand-written fast kernel
-:mod:`bayesdamper.physics.augmented`.
+runs on the composed kernel (:mod:`bayesdamper.physics.compose`), driven by any displacement input.
 
 An effect set is a ``dict[effect name -> dict[parameter name -> value]]``; :func:`complete_effects`
 fills the defaults, :func:`parse_effect_spec` reads the command-line form
@@ -36,7 +34,7 @@ __all__ = [
     "parse_effect_specs",
 ]
 
-#: The six effects of the fixed effect vector, first and in this order (their outputs keep their order).
+#: The first library effects, in this order (outputs and the kernel's layout keep it); the others follow by name.
 _FIRST = ("friction", "backlash", "actuator_lag", "valve_dynamics", "series_compliance", "inertia")
 
 
@@ -55,7 +53,7 @@ def _discover() -> dict[str, ModuleType]:
     return {n: found[n] for n in order}
 
 
-#: The registry's modules: effect name -> module, the six of the fixed vector first, then by name.
+#: The registry's modules: effect name -> module, :data:`_FIRST` first, then by name.
 EFFECT_MODULES: dict[str, ModuleType] = _discover()
 #: The registry: effect name -> Effect, in the order of :data:`EFFECT_MODULES`.
 EFFECTS: dict[str, Effect] = {n: m.EFFECT for n, m in EFFECT_MODULES.items()}

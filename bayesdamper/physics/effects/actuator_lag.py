@@ -9,9 +9,7 @@ On a steady ramp of speed v the piston trails by v τ_a and moves at v, so plate
 after a velocity step the transient is delayed and rounded over ~τ_a. A transient window starts
 from the steady-ramp state of the preceding segment (trail ``v_prev τ_a``; 0 from rest).
 
-The lag is linear in a piecewise-linear input, so the forward kernel integrates this state exactly
-(closed form on each knot segment, carried across knots); the independent references integrate it
-as an ODE state.
+The trail is an ODE state of the composed kernel, integrated with Δp.
 """
 
 from __future__ import annotations
@@ -28,8 +26,7 @@ EFFECT = Effect(
     description="the piston follows the measured actuator displacement through a first-order lag",
     params=(
         EffectParam("time_constant_s", "s", 1.0e-4, 0.5, 0.01, True,
-                    "time constant τ_a of the first-order lag from measured to piston displacement",
-                    slot="lag_tau"),
+                    "time constant τ_a of the first-order lag from measured to piston displacement"),
     ),
 )
 

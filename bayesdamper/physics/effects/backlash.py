@@ -6,24 +6,36 @@ along, ``y_P = y_A - r`` when pushing forward and ``y_A + r`` when pulling back.
 the piston therefore rests until the actuator has moved ``gap``; from rest with the piston centred
 in the play (the default) until it has moved ``gap / 2``.
 
-On a piecewise-linear actuator displacement the play operator is exactly piecewise linear: each
-linear segment adds at most one knot (where the actuator takes up the play), so it is applied as a
-transform of the knots (:func:`backlash_knots`), never as an ODE state.
+The play operator is applied to the input itself, never as an ODE state. On a piecewise-linear actuator
+displacement it is exactly piecewise linear: each linear segment adds at most one knot (where the actuator
+takes up the play), :func:`backlash_knots`. On polynomial pieces of higher degree (a smoothed measured
+record) the piston rests at a constant until the actuator reaches a side of the play (a root of a piece,
+where the piston's velocity jumps: a restart break) and follows the actuator until its velocity changes sign
+(a root of the piece's derivative), :func:`play_polynomial`.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.excitation import PiecewisePolynomial
 
-__all__ = ["EFFECT", "backlash_knots", "knots"]
+__all__ = ["EFFECT", "backlash_knots", "play_polynomial", "transform_input"]
 
 #: Engagement points closer than this to a knot are merged into it [s] (keeps knot times strictly
 #: increasing by far more than the kernel's step-size floor).
 MERGE_TIME_S = 1e-9
+#: Distance from a side of the play within which the actuator counts as in contact [m] (far below any sensor's
+#: resolution, far above the round-off of the piece arithmetic on displacements of millimetres).
+CONTACT_M = 1e-12
+#: Speed below which the actuator counts as not moving [m/s] (round-off of the pieces' derivative at a reversal is
+#: ~1e-18 m/s; any real motion is many orders above).
+MOVING_M_S = 1e-12
 
 EFFECT = Effect(
     name="backlash",
@@ -31,7 +43,7 @@ EFFECT = Effect(
                 "actuator has taken up the gap",
     params=(
         EffectParam("gap_m", "m", 1.0e-7, 1.0e-3, 1.0e-5, True,
-                    "total free play between the measured actuator displacement and the piston", slot="gap"),
+                    "total free play between the measured actuator displacement and the piston"),
     ),
 )
 
@@ -95,7 +107,97 @@ def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
     return _play_knots(kt, ky, r, yp)
 
 
+def _first_root(c: np.ndarray, h: float) -> float | None:
+    """Smallest real root in (0, h) of the polynomial sum_j c[j] s^j, or None."""
+    cc = np.trim_zeros(np.asarray(c, dtype=float)[::-1], "f")
+    if cc.size < 2:
+        return None
+    roots = np.roots(cc)
+    real = roots[np.abs(roots.imag) <= 1e-9 * max(1.0, h)].real
+    real = real[(real > MERGE_TIME_S) & (real < h - MERGE_TIME_S)]
+    return float(real.min()) if real.size else None
+
+
+def play_polynomial(drive: PiecewisePolynomial, gap: float, y_piston0: float | None = None) -> PiecewisePolynomial:
+    """The piston displacement behind a play of total width ``gap`` [m] for an actuator displacement of any
+    degree (module docstring); degree-1 inputs go through :func:`backlash_knots` (exact and faster).
+
+    Parameters
+    ----------
+    drive : PiecewisePolynomial
+        Actuator displacement [m].
+    gap : float
+        Total free play [m], >= 0.
+    y_piston0 : float, optional
+        Piston displacement at the first break [m]; default centred in the play.
+    """
+    if not (np.isfinite(gap) and gap >= 0):
+        raise SettingsError(f"backlash gap must be finite and >= 0 m, got {gap!r}")
+    if gap == 0:
+        return drive
+    if drive.degree == 1 and bool(np.all(drive.restart)):
+        kt, ky = backlash_knots(drive.breaks, drive.displacement(drive.breaks), gap, y_piston0)
+        return PiecewisePolynomial.from_knots(kt, ky)
+    r = 0.5 * float(gap)
+    y0 = float(drive.coefs[0, 0])
+    yp = y0 if y_piston0 is None else min(max(float(y_piston0), y0 - r), y0 + r)
+    side = 0.0  # 0: free (piston at rest at yp); -r: dragged forward (y_P = y_A - r); +r: dragged back
+    k_deg = drive.coefs.shape[1]
+    breaks, coefs, restart = [drive.start], [], [True]
+    for k in range(drive.coefs.shape[0]):
+        ta, tb = float(drive.breaks[k]), float(drive.breaks[k + 1])
+        c = drive.coefs[k]
+        dc = c[1:] * np.arange(1, k_deg)
+        s0 = 0.0
+        while s0 < tb - ta:
+            h = tb - ta - s0
+            cs = _shift_coefs(c, s0)
+            dcs = _shift_coefs(dc, s0)
+            if side == 0.0:  # free: the first contact with either side of the play
+                hits = [(s, sd) for sd, level in ((-r, yp + r), (r, yp - r))
+                        if (s := _first_root(cs - np.r_[level, np.zeros(k_deg - 1)], h)) is not None]
+                if abs(cs[0] - yp) >= r - CONTACT_M and (dcs[0] > 0) == (cs[0] > yp) and abs(dcs[0]) > MOVING_M_S:
+                    hits.append((0.0, -r if dcs[0] > 0 else r))  # at a side and moving out: taken along now
+                if not hits:
+                    _append(breaks, coefs, restart, ta + s0 + h, np.r_[yp, np.zeros(k_deg - 1)], False)
+                    s0 += h
+                    continue
+                s, sd = min(hits)
+                if s > 0.0:
+                    _append(breaks, coefs, restart, ta + s0 + s, np.r_[yp, np.zeros(k_deg - 1)], False)
+                    restart[-1] = True  # the piston's velocity jumps from 0 where it is taken along
+                    s0 += s
+                side = sd
+                continue
+            # dragged: follow the actuator until its velocity changes sign (at once if it no longer moves out)
+            outward = -side * dcs[0] > 0.0 and abs(dcs[0]) > MOVING_M_S
+            s = 0.0 if not outward else _first_root(dcs, h)
+            end = h if s is None else s
+            _append(breaks, coefs, restart, ta + s0 + end, cs + np.r_[side, np.zeros(k_deg - 1)], False)
+            s0 += end
+            if s is not None:
+                yp = float(np.polyval(cs[::-1], end)) + side
+                side = 0.0
+        restart[-1] = restart[-1] or bool(drive.restart[k + 1])
+    return PiecewisePolynomial(np.array(breaks), np.array(coefs), np.array(restart))
+
+
+def _shift_coefs(c: np.ndarray, d: float) -> np.ndarray:
+    """Coefficients of p(s + d) in powers of s, for p(s) = sum_j c[j] s^j."""
+    n = c.size
+    return np.array([sum(c[j] * math.comb(j, i) * d ** (j - i) for j in range(i, n)) for i in range(n)])
+
+
+def _append(breaks: list, coefs: list, restart: list, t_end: float, c: np.ndarray, flag: bool) -> None:
+    """Append the piece [breaks[-1], t_end] with coefficients ``c`` (merging a vanishing piece)."""
+    if t_end - breaks[-1] <= MERGE_TIME_S:
+        return
+    coefs.append(np.asarray(c, dtype=float))
+    breaks.append(t_end)
+    restart.append(flag)
+
+
 # ----------------------------------------------------------------------------- composed-kernel hooks
-def knots(kt: np.ndarray, ky: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The piston knots behind the play ``p[0]`` [m] (knot hook of :mod:`bayesdamper.physics.compose`)."""
-    return backlash_knots(kt, ky, float(p[0]))
+def transform_input(drive: PiecewisePolynomial, p: np.ndarray) -> PiecewisePolynomial:
+    """The piston displacement behind the play ``p[0]`` [m] (input hook of :mod:`bayesdamper.physics.compose`)."""
+    return play_polynomial(drive, float(p[0]))

@@ -1,9 +1,8 @@
-"""The description of one candidate effect: its parameters, their units, priors and vector slots.
+"""The description of one candidate effect: its parameters, their units and priors.
 
 An :class:`Effect` is pure metadata: name, one-line physical reading and an ordered tuple of
-:class:`EffectParam`. The physics lives in the effect's own module (scalar functions the forward
-kernel calls) and in :mod:`bayesdamper.physics.augmented` (the forward model). Each parameter names the slot
-of the augmented effect vector it fills; only :mod:`bayesdamper.physics.augmented` knows the slots' order.
+:class:`EffectParam`. The physics lives in the effect's own module (the numba hooks the composed kernel of
+:mod:`bayesdamper.physics.compose` calls).
 """
 
 from __future__ import annotations
@@ -40,12 +39,8 @@ class EffectParam:
         The diagnosis may leave this parameter at ``off`` and fit only the others.
     off : float
         Value at which the parameter has no effect [unit] (``inf`` for a stiffness).
-    slot : str
-        Name of the slot of the fixed effect vector this parameter fills
-        (:data:`bayesdamper.physics.effect_vector.EFFECT_SLOTS`); empty for the effects that run only on
-        the composed kernel.
     reciprocal : bool
-        The slot holds ``1 / value`` (a stiffness stored as a compliance, so that 0 = off).
+        A stiffness whose hook uses ``1 / value`` (a compliance): admissible values are > 0, ``inf`` = off.
     inf_ok : bool
         ``inf`` is admissible (an off value: an infinitely fast servo, an infinite span).
     """
@@ -59,7 +54,6 @@ class EffectParam:
     description: str
     optional: bool = False
     off: float = 0.0
-    slot: str = ""
     reciprocal: bool = False
     inf_ok: bool = False
 
@@ -75,18 +69,6 @@ class EffectParam:
     def signed(self) -> bool:
         """Negative values are admissible (``lower < 0``)."""
         return self.lower < 0.0
-
-    def to_slot(self, value: float) -> float:
-        """Slot value of a parameter value (``1/value`` for a reciprocal parameter, ``1/inf = 0``)."""
-        if self.reciprocal:
-            return 0.0 if math.isinf(value) else 1.0 / value
-        return float(value)
-
-    def from_slot(self, slot_value: float) -> float:
-        """Parameter value of a slot value (inverse of :meth:`to_slot`)."""
-        if self.reciprocal:
-            return math.inf if slot_value == 0.0 else 1.0 / slot_value
-        return float(slot_value)
 
     def check(self, value: float, effect: str) -> float:
         """Return ``value`` as a float if it is admissible, else raise a one-line SettingsError.
@@ -135,16 +117,6 @@ class Effect:
     def param_names(self) -> tuple[str, ...]:
         """Names of the parameters, in order."""
         return tuple(p.name for p in self.params)
-
-    @property
-    def slots(self) -> tuple[str, ...]:
-        """Slots of the fixed effect vector this effect fills, in parameter order (empty strings if none)."""
-        return tuple(p.slot for p in self.params)
-
-    @property
-    def in_fixed_vector(self) -> bool:
-        """The effect has slots in the fixed effect vector (it can run on the hand-written kernel)."""
-        return all(p.slot for p in self.params)
 
     @property
     def required(self) -> tuple[EffectParam, ...]:

@@ -10,7 +10,7 @@ coefficient c_v [N s/m]; the smoothed sign uses the fixed velocity scale ``SIGN_
 Positive F_f has the sign of v (positive force compresses CH1, like Δp > 0).
 
 At a velocity step the measured step force includes F_f(v_before), so the initial Δp of a transient
-is ``(F_step - F_f(v_before)) / A_P`` (:class:`bayesdamper.physics.with_effects.AugmentedProblem` does this).
+is ``(F_step - F_f(v_before)) / A_P`` (the composed kernel's start from the measured force does this).
 """
 
 from __future__ import annotations
@@ -34,15 +34,14 @@ EFFECT = Effect(
                 "viscous and Stribeck parts)",
     params=(
         EffectParam("coulomb_N", "N", 1.0, 3000.0, 100.0, True,
-                    "Coulomb friction force F_C of the piston and rod seals", slot="coulomb"),
+                    "Coulomb friction force F_C of the piston and rod seals"),
         EffectParam("viscous_Ns_per_m", "N s/m", 10.0, 1.0e6, 0.0, True,
                     "viscous friction coefficient c_v (indistinguishable from C_L on plateaus)",
-                    optional=True, slot="viscous"),
+                    optional=True),
         EffectParam("stribeck_N", "N", 1.0, 3000.0, 0.0, True,
-                    "Stribeck (breakaway) excess force F_S at zero speed", optional=True, slot="stribeck"),
+                    "Stribeck (breakaway) excess force F_S at zero speed", optional=True),
         EffectParam("stribeck_velocity_m_s", "m/s", 1.0e-6, 1.0e-2, 1.0e-4, True,
-                    "Stribeck velocity v_St over which the breakaway excess decays", optional=True,
-                    slot="stribeck_v"),
+                    "Stribeck velocity v_St over which the breakaway excess decays", optional=True),
     ),
 )
 

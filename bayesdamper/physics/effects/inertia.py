@@ -1,15 +1,15 @@
 """Inertia: the moving mass adds m a_P to the measured force.
 
 A piecewise-linear displacement has zero acceleration between knots and infinite at them. The rig
-controller rounds the corners: the piston velocity is taken as the knot velocity passed through a
-first-order filter of fixed time constant ``CORNER_TIME_S`` = 0.05 s, and the acceleration a_P is
-the derivative of that filtered velocity (a filter state)::
+controller rounds the corners: the piston velocity v_f follows the measured velocity v_A with its
+acceleration a_A, and a velocity step through a first-order filter of fixed time constant
+``CORNER_TIME_S`` = 0.05 s (a filter state)::
 
-    dv_f/dt = a_P = (v_knot - v_f) / CORNER_TIME_S,    F = A_P Δp + m a_P
+    dv_f/dt = a_P = a_A + (v_A - v_f) / CORNER_TIME_S,    F = A_P Δp + m a_P
 
 So after a velocity step of size Δv the force carries ``m Δv / CORNER_TIME_S exp(-t / CORNER_TIME_S)``
-and nothing on steady ramps. The simulator uses the same convention, so the effect is identifiable.
-The filter is linear, so the forward kernel integrates it exactly (closed form per knot segment).
+and nothing on steady ramps; on a smooth input (a sine) v_f = v_A and the force is m a_A. The simulator
+uses the same convention, so the effect is identifiable.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from __future__ import annotations
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import VA
+from bayesdamper.physics.effects.signals import AA, VA
 
 __all__ = ["CORNER_TIME_S", "EFFECT", "STATES", "STATE_ATOL", "derivatives", "force", "initial"]
 
@@ -29,7 +29,7 @@ EFFECT = Effect(
     description="the moving mass of piston, rod and fixtures adds m times the acceleration at the corners",
     params=(
         EffectParam("mass_kg", "kg", 1.0, 1.0e4, 1000.0, True,
-                    "moving mass m between the force transducer and the piston", slot="mass"),
+                    "moving mass m between the force transducer and the piston"),
     ),
 )
 
@@ -42,14 +42,14 @@ STATE_ATOL = (1.0e-12,)
 
 @njit(cache=True, error_model="numpy")
 def derivatives(sig, z, p, dz):
-    """dv_f/dt = (v_A - v_f) / CORNER_TIME_S."""
-    dz[0] = (sig[VA] - z[0]) / CORNER_TIME_S
+    """dv_f/dt = a_A + (v_A - v_f) / CORNER_TIME_S."""
+    dz[0] = sig[AA] + (sig[VA] - z[0]) / CORNER_TIME_S
 
 
 @njit(cache=True, error_model="numpy")
 def force(sig, z, p):
     """m a_P [N]."""
-    return p[0] * (sig[VA] - z[0]) / CORNER_TIME_S
+    return p[0] * (sig[AA] + (sig[VA] - z[0]) / CORNER_TIME_S)
 
 
 @njit(cache=True, error_model="numpy")

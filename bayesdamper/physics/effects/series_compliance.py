@@ -6,7 +6,7 @@ deflects under the damper force: ``y_P = y_A - A_P Δp / k_s``. Substituted in e
     d(Δp)/dt = K (A_P dy_A/dt - Q_O(Δp)) / (1 + K A_P^2 / k_s),    K = B_1/V_1 + B_2/V_2
 
 so the mount stiffness is in series with the hydraulic stiffness K A_P^2: the rise after a step is
-slower, the steady state unchanged. The effect vector stores the compliance 1/k_s, so 0 is a rigid
+slower, the steady state unchanged. The ``compliance`` hook gives the kernel 1/k_s, so k_s = inf is a rigid
 mount (eq. (7)).
 """
 
@@ -23,8 +23,7 @@ EFFECT = Effect(
     description="the damper is mounted through a finite stiffness in series, which slows the force rise",
     params=(
         EffectParam("stiffness_N_per_m", "N/m", 1.0e6, 1.0e10, 1.0e8, True,
-                    "stiffness k_s of the mount and rod in series with the damper", off=math.inf,
-                    slot="compliance", reciprocal=True),
+                    "stiffness k_s of the mount and rod in series with the damper", off=math.inf, reciprocal=True),
     ),
 )
 

@@ -6,7 +6,8 @@ signals they need by these indices (SI units):
 
 ========  ===========================================================================
 ``T``     time t [s] (absolute record time)
-``YA``    measured (actuator) displacement y_A [m] and ``VA`` its velocity [m/s]
+``YA``    measured (actuator) displacement y_A [m], ``VA`` its velocity [m/s] and ``AA`` its acceleration
+          [m/s^2] (0 between the knots of a piecewise-linear input, and in the steady state before t0)
 ``YP``    drive displacement [m]: y_A after the displacement-path effects, then the piston position
           y_P once the series compliance is applied; ``VP`` its velocity [m/s] (v_P after compliance)
 ``DP``    Δp [Pa]; ``DDP`` dΔp/dt [Pa/s]
@@ -37,11 +38,11 @@ the state derivative it must fill):
 
 from __future__ import annotations
 
-__all__ = ["DDP", "DP", "DP1", "DP2", "N_SIGNALS", "P1", "P2", "PRESSURE_FLOOR_PA", "Q", "QO", "T", "V1", "V2",
+__all__ = ["AA", "DDP", "DP", "DP1", "DP2", "N_SIGNALS", "P1", "P2", "PRESSURE_FLOOR_PA", "Q", "QO", "T", "V1", "V2",
            "VA", "VP", "YA", "YP"]
 
-T, YA, VA, YP, VP, DP, DDP, QO, Q, P1, P2, DP1, DP2, V1, V2 = range(15)
+T, YA, VA, YP, VP, DP, DDP, QO, Q, P1, P2, DP1, DP2, V1, V2, AA = range(16)
 #: Length of the signal vector.
-N_SIGNALS = 15
+N_SIGNALS = 16
 #: Absolute pressure below which the bulk modulus is evaluated at this floor [Pa] (about vapour pressure).
 PRESSURE_FLOOR_PA = 1.0e4

@@ -32,9 +32,9 @@ EFFECT = Effect(
                 "difference (overshoot, pressure pulses)",
     params=(
         EffectParam("time_constant_s", "s", 1.0e-4, 3.0, 0.1, True,
-                    "time constant τ_v of the valve opening", slot="valve_tau"),
+                    "time constant τ_v of the valve opening"),
         EffectParam("opening_pressure_Pa", "Pa", 1.0e3, 1.0e6, 5.0e4, True,
-                    "pressure-difference scale p_v over which the valves open", slot="valve_p"),
+                    "pressure-difference scale p_v over which the valves open"),
     ),
 )
 
@@ -78,5 +78,5 @@ def initial(sig, p, z):
 
 @njit(cache=True, error_model="numpy")
 def state_atol(p, atol, out):
-    """Tolerance of x: that of Δp over p_v (as the hand-written kernel)."""
+    """Tolerance of x: that of Δp over p_v."""
     out[0] = atol / p[1] if p[1] > 0.0 else 1.0

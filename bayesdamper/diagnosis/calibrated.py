@@ -1,0 +1,121 @@
+"""The calibrated model on every window: its residuals, the noise it is judged against, where re-fits start.
+
+The diagnosis starts from the calibrated baseline (eq. (7), or eq. (7) with the effects already selected) of every
+window (:class:`bayesdamper.io.windows.Window`), whatever its kind: a transient whose flow coefficients come from
+stage 1 and whose start force from the samples before the step, or a window of whole cycles with its own flow
+coefficients and start. The residual is taken at the posterior medians of each window's parameters; the noise is
+the plateaus' where there are plateaus, else each window's own estimate (:mod:`bayesdamper.inference.noise`), in
+the form the structure test needs (:func:`bayesdamper.diagnosis.residual.structure_test`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bayesdamper.core.params import FlowCoefficients
+from bayesdamper.diagnosis.residual import SMOOTH_S, plateau_noise
+
+__all__ = ["baseline_residuals", "pooled_noise", "stage_one_for", "warm_start", "window_noise_dict"]
+
+#: Effects whose force changes the plateaus (so stage 1 is fitted again with them): their parameter giving the
+#: constant force [N] along the motion, signed with the velocity (friction) or not (an offset).
+PLATEAU_FORCES = {"friction": ("coulomb_N", True), "load_cell_offset": ("offset_N", False)}
+
+
+def _flow_of(entry: dict, flow0: FlowCoefficients | None) -> FlowCoefficients:
+    """The window's flow coefficients: the posterior medians of its own, else stage 1's."""
+    f = entry.get("flow") or {}
+    if flow0 is None or entry.get("flow_prior", "").startswith("flat"):
+        vals = [f[n]["median"] for n in ("CL12", "CQ12", "CL21", "CQ21")]
+        return FlowCoefficients(*[max(float(v), 0.0) for v in vals])
+    return flow0
+
+
+def baseline_residuals(windows, results, damper, flow0: FlowCoefficients | None, effects=None):
+    """Residual (model − measured) [N] of every window at its posterior medians, and each window's flow.
+
+    ``results``: the windows' :class:`~bayesdamper.inference.stage2.WindowResult`; ``effects``: the model's
+    effects (None: eq. (7)). A failed solve leaves the measured force as the residual.
+    """
+    from bayesdamper.inference.joint import JointProblem, StageOnePrior
+    from bayesdamper.inference.plateau_noise import PlateauNoise
+
+    out, flows = [], []
+    dummy = StageOnePrior.flat(PlateauNoise(0.0, 1.0, 1, 0))
+    for w, res in zip(windows, results, strict=True):
+        e = res.entry
+        flow = _flow_of(e, flow0)
+        jp = JointProblem.from_window(w, damper, dummy, effects=effects)
+        start = e["dp0_Pa"]["median"] if "dp0_Pa" in e else w.dp0
+        theta = np.r_[math.log(e["alpha_V"]["median"]), math.log(e["p_R_Pa"]["median"]), start, flow.as_array()]
+        f, ok = jp.simulate_window(theta)
+        out.append(f - w.force if ok else w.force.copy())
+        flows.append(flow)
+    return out, flows
+
+
+def _ar1_smoothed(phi: float, sigma: float, n: int) -> float:
+    """Mean square of an n-sample moving average of AR(1) noise of coefficient φ and marginal sd σ [N^2]."""
+    k = np.arange(1, n)
+    return float(sigma * sigma / (n * n) * (n + 2.0 * np.sum((n - k) * phi ** k)))
+
+
+def window_noise_dict(window, entry: dict, segs) -> dict:
+    """The noise a window's residual is judged against, as :func:`~bayesdamper.diagnosis.residual.plateau_noise`
+    gives it: the plateaus' where the data set has plateaus, else the window's own AR(1) estimate (its entry's
+    ``noise``) with the moving average's mean square in closed form and the estimate's degrees of freedom (half
+    the samples it was made from: one per periodogram bin pair)."""
+    plateaus = [p for s in segs for p in s.plateaus]
+    if plateaus:
+        return plateau_noise(segs)
+    nz = entry.get("noise") or {}
+    phi, sigma = float(nz.get("phi", 0.0)), float(nz.get("sigma_N", np.std(window.force)))
+    rate = 1.0 / float(np.median(np.diff(window.time)))
+    n_avg = max(1, int(round(SMOOTH_S * rate)))
+    return {"sigma_N": sigma, "rho": phi, "n": int(nz.get("n_samples", window.time.size)),
+            "smoothed_ms": _ar1_smoothed(phi, sigma, n_avg),
+            "smoothed_dof": float(max(0.5 * nz.get("n_samples", window.time.size), 1.0)),
+            "source": nz.get("source", "window")}
+
+
+def pooled_noise(noises: list[dict]) -> dict:
+    """One noise summary for the report: the plateaus' (identical in every window) or the windows' median."""
+    if all(n is noises[0] or n == noises[0] for n in noises):
+        return noises[0]
+    return {"sigma_N": float(np.median([n["sigma_N"] for n in noises])),
+            "rho": float(np.median([n["rho"] for n in noises])), "n": int(sum(n["n"] for n in noises)),
+            "source": "each window's own estimate (median shown)"}
+
+
+def warm_start(problem, entry: dict, area: float) -> np.ndarray:
+    """A window's own parameters at its baseline posterior medians (the engine's warm start)."""
+    flow = entry.get("flow") or {}
+    f4 = np.array([flow[n]["median"] for n in ("CL12", "CQ12", "CL21", "CQ21")]) if flow else None
+    start = entry["dp0_Pa"]["median"] * area if "dp0_Pa" in entry else None
+    return problem.inner_start(entry["alpha_V"]["median"], entry["p_R_Pa"]["median"], start, f4)
+
+
+def stage_one_for(plateaus, area: float, source: str):
+    """``flow_for(effects)``: stage 1 fitted again on the plateaus with the effects' constant forces removed
+    (:data:`PLATEAU_FORCES`), or None when no selected effect moves the plateaus."""
+    from types import SimpleNamespace
+
+    from bayesdamper.inference.stage1 import fit_static
+
+    def flow_for(effects: dict):
+        shift = {1: 0.0, -1: 0.0}
+        for name, (param, signed) in PLATEAU_FORCES.items():
+            value = float((effects.get(name) or {}).get(param, 0.0))
+            for d in (1, -1):
+                shift[d] += value * (d if signed else 1.0)
+        if shift[1] == 0.0 and shift[-1] == 0.0:
+            return None
+        # a plateau's pressure drop is direction * mean force / A_P: remove the effect's force first
+        corr = [SimpleNamespace(direction=p.direction, flow_rate=p.flow_rate,
+                                pressure_drop=p.pressure_drop - p.direction * shift[p.direction] / area)
+                for p in plateaus]
+        return fit_static(corr, source=source)
+
+    return flow_for
