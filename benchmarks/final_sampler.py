@@ -19,8 +19,8 @@ import sys
 import time
 
 from bayesdamper.diagnosis.loop import FixedEffectsProblem
-from bayesdamper.inference.problem import LIKELIHOOD_RTOL
 from bayesdamper.inference.identify import identify_window
+from bayesdamper.inference.problem import LIKELIHOOD_RTOL
 from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.physics.with_effects import AugmentedProblem, effect_argument
 from bayesdamper.run.diagnose import FINAL_MOVE, final_settings

@@ -1,14 +1,25 @@
-"""A base for test doubles of :class:`bayesdamper.diagnosis.candidates.ProfileEngine`."""
+"""A base for test doubles of :class:`bayesdamper.diagnosis.candidates.ProfileEngine`, and of its problems."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
+
+from bayesdamper.inference.problem import INNER_BOX
+
+
+def fake_problem(force: np.ndarray) -> SimpleNamespace:
+    """A stand-in for a window's :class:`~bayesdamper.inference.problem.EffectsProblem`: its measured ``force`` [N]
+    and the box of its own parameters (log α_V, log p_R), the one the engine reads to know which of them a re-fit
+    can move."""
+    return SimpleNamespace(force=np.asarray(force, dtype=float), inner_box=lambda: INNER_BOX)
 
 
 class FakeProfileEngine:
-    """Subclasses give ``problems`` and ``evaluate``; the Jacobian of the residuals with respect to the shared
-    parameters comes from forward differences of ``evaluate`` (a fake's residual has no (α_V, p_R) to project out,
-    so ``jac`` is None for every transient)."""
+    """Subclasses give ``problems`` (:func:`fake_problem`) and ``evaluate``; the Jacobian of the residuals with
+    respect to the shared parameters comes from forward differences of ``evaluate`` (a fake's residual has no
+    (α_V, p_R) to project out, so ``jac`` is None for every transient)."""
 
     screen = None
 

@@ -52,15 +52,13 @@ def test_screening_subset_takes_every_speed_and_rotates_the_kind():
 
 def test_a_screened_grid_finds_the_same_optimum_and_scores_on_every_transient():
     """The grid on a subset picks the start; the local search and the score use all transients."""
-    from types import SimpleNamespace
-
-    from profile_fakes import FakeProfileEngine
+    from profile_fakes import FakeProfileEngine, fake_problem
 
     from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
     class Engine(FakeProfileEngine):
         def __init__(self, screen):
-            self.problems = [SimpleNamespace(force=np.ones(20)) for _ in range(16)]
+            self.problems = [fake_problem(np.ones(20)) for _ in range(16)]
             self.screen = screen
             self.calls = []
 

@@ -9,7 +9,6 @@ the generator's structure, the step cap and the effects' behaviour on smooth inp
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.physics import compose as compose_mod

@@ -98,6 +98,33 @@ def test_column_order_and_extra_columns(make_dataset, valid_columns):
     np.testing.assert_allclose(rec.force, f, atol=1e-3)
 
 
+def _with_velocity(t, y, f, v, header: str = HEADER + ",velocity_m_s") -> str:
+    rows = "\n".join(f"{a:.6f},{b:.9e},{c:.4f},{d}" for a, b, c, d in zip(t, y, f, v, strict=True))
+    return f"{header}\n{rows}\n"
+
+
+def test_velocity_column_is_read_when_present(make_dataset, valid_columns):
+    """An optional ``velocity_m_s`` column (a measured velocity channel) is read into ``TestRecord.velocity``
+    (read-only); a record without one has None."""
+    t, y, f = valid_columns
+    v = np.gradient(y, t)
+    folder = make_dataset({"with_v": _with_velocity(t, y, f, [f"{x:.9e}" for x in v]), "without": (t, y, f)})
+    ds = load_dataset(folder)
+    rec = ds.record("with_v")
+    np.testing.assert_allclose(rec.velocity, v, rtol=1e-8, atol=1e-15)
+    assert not rec.velocity.flags.writeable
+    assert ds.record("without").velocity is None
+
+
+@pytest.mark.parametrize("bad, words", [("nan", ("velocity_m_s", "finite")), ("inf", ("velocity_m_s", "finite")),
+                                        ("fast", ("velocity_m_s", "not a number"))])
+def test_velocity_column_must_hold_finite_numbers(make_dataset, valid_columns, bad, words):
+    t, y, f = valid_columns
+    v = [f"{x:.9e}" for x in np.gradient(y, t)]
+    v[40] = bad
+    _bad_csv(make_dataset, _with_velocity(t, y, f, v), *words)
+
+
 def test_sample_jitter_within_tolerance_is_accepted(make_dataset, valid_columns):
     t, y, f = valid_columns
     rng = np.random.default_rng(3)

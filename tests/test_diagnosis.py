@@ -60,7 +60,7 @@ def test_effective_size_and_pooled_j():
 
 def test_pooled_j_at_the_least_squares_optima_pools_the_per_transient_j():
     """pooled_j_ls weighs each transient's eq. (9) J by its force energy: the pooled J of residuals of those norms."""
-    from bayesdamper.run.diagnose import pooled_j_ls
+    from bayesdamper.diagnosis.summary import pooled_j_ls
 
     rng = np.random.default_rng(5)
     forces = [rng.normal(0, s, n) for s, n in ((1e3, 300), (8e3, 500), (2e2, 100))]

@@ -49,7 +49,7 @@ def test_needs_three_points_at_two_speeds():
 def test_drift_summary_leaves_out_posteriors_at_a_prior_bound_when_enough_remain():
     """A posterior piled against a prior bound has a mean set by the box: left out of the trend, unless that
     leaves fewer than three transients at two speeds (then the converged ones are used, as before)."""
-    from bayesdamper.run.stages import drift_summary
+    from bayesdamper.inference.drift import drift_summary
 
     def entry(v, at_bound):
         mean = 1e9 if at_bound else 40.0 + 1e4 * v  # an at-bound mean far off the trend

@@ -98,12 +98,18 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
     assert fit.x[1] <= 0.1 and fit.sse <= float(resid(start) @ resid(start))
     assert fit.converged is False or fit.sse == pytest.approx(2 * ref.cost, rel=1e-6)
 
-    # the same through the worker, in the search's coordinates (log α_V, log p_R) = x + (5, 12)
+    # the same through the worker, in the search's coordinates (log α_V, log p_R) = x + (5, 12), inside the box of a
+    # window's own parameters (INNER_BOX: log α_V in [0.69, 8.5], log p_R in [6.9, 16.1])
+    from bayesdamper.inference.problem import INNER_BOX
+
     class Problem:
         force = np.zeros(400)
 
-        def simulate_force(self, alpha_v, p_r, eff):
-            r = guarded(np.array([math.log(alpha_v) - 5.0, math.log(p_r) - 12.0]))
+        def inner_box(self):
+            return INNER_BOX
+
+        def simulate_inner(self, x, eff, flow=None):
+            r = guarded(np.asarray(x) - [5.0, 12.0])
             return (r, True) if r is not None else (np.full(400, np.nan), False)
 
     E._PROBLEMS[:] = [Problem()]
@@ -122,7 +128,9 @@ class _SeparableEngine:
         self.t = np.linspace(0.0, 3.0, 300)
         self.data = [1.0 + 0.3 * k + (2.0 - 0.1 * k) * np.exp(-0.8 * self.t) + 0.05 * self.t ** 2
                      + 0.03 * np.sin((3 + k) * self.t) + 0.01 * rng.standard_normal(self.t.size) for k in range(n)]
-        self.problems = [type("P", (), {"force": d})() for d in self.data]
+        # the per-transient x are unbounded linear coefficients: the engine projects out both of their directions
+        unbounded = (np.full(2, -np.inf), np.full(2, np.inf))
+        self.problems = [type("P", (), {"force": d, "inner_box": lambda self: unbounded})() for d in self.data]
         self.jac = [None] * n
         self.screen = None
         self.n_evaluate = 0

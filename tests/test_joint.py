@@ -88,9 +88,9 @@ def test_dp0_sd_is_the_ar1_mean_sd():
     pn = joint.PlateauNoise(phi, sd * math.sqrt(1 - phi**2), 1000, 5)
     seg = _record()
     tr = seg.transients[0]
-    jp = joint.JointProblem.from_window(tr, DAMPER, _prior(pn))
-    jp = joint.JointProblem(tr.id, tr.time, tr.force, tr.pre_time[:n], tr.pre_force[:n], tr.t_step, tr.knot_times,
-                            tr.knot_displacements, DAMPER, _prior(pn))
+    jp = joint.JointProblem(tr.id, tr.time, tr.force, tr.pre_time[:n], tr.pre_force[:n], tr.t_step, tr.local_drive,
+                            float(tr.dp0), DAMPER, _prior(pn))
+    assert jp.pre_force.size == n
     assert jp.dp0_sd() * DAMPER.piston_area == pytest.approx(np.std(means), rel=0.05)  # MC sd error 1.1 %
 
 

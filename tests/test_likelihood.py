@@ -17,7 +17,7 @@ from bayesdamper.inference.likelihood import (
     make_noise_model,
 )
 from bayesdamper.inference.problem import WindowProblem
-from bayesdamper.physics.excitation import PiecewiseLinear
+from bayesdamper.physics.excitation import PiecewiseLinear, PiecewisePolynomial
 from bayesdamper.physics.single_state import simulate_single_state
 
 #: Agreement of two float64 evaluations of the same log density (sums of ~750 terms).
@@ -29,8 +29,7 @@ def make_problem(noise=20.0, seed=0, v=1.0e-3, alpha_v=33.0, p_r=3e5):
     t = np.arange(0.0, 3.0, 1 / 250)
     dp = simulate_single_state(t, exc, RIG_A_DAMPER, PAPER_FLOW, DynamicParameters(alpha_v, p_r), dp0=0.0)
     f = RIG_A_DAMPER.piston_area * dp + noise * np.random.default_rng(seed).standard_normal(t.size)
-    return WindowProblem("synthetic_s0", t, f, 0.0, 0.0, exc.knot_times, exc.knot_displacements,
-                            RIG_A_DAMPER, PAPER_FLOW)
+    return WindowProblem("synthetic_s0", t, f, 0.0, 0.0, exc.as_polynomial(), RIG_A_DAMPER, PAPER_FLOW)
 
 
 def test_cost_j_is_eq9():
@@ -111,7 +110,8 @@ def test_failed_solve_is_minus_inf():
     t = np.arange(0.0, 3.0, 1 / 250)
     knots = np.array([0.0, 3.0])
     y = np.array([0.0, 0.2])  # 0.2 m * 4.2e-3 m^2 > V01 = 1.5e-4 m^3
-    prob = WindowProblem("bad", t, np.ones_like(t), 0.0, 0.0, knots, y, RIG_A_DAMPER, PAPER_FLOW)
+    prob = WindowProblem("bad", t, np.ones_like(t), 0.0, 0.0, PiecewisePolynomial.from_knots(knots, y), RIG_A_DAMPER,
+                         PAPER_FLOW)
     lp = LogPosterior(prob)
     assert lp(np.array([np.log(30), np.log(1e5), 0.2])) == -np.inf
 

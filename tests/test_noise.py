@@ -4,6 +4,8 @@ Every record is seeded AR(1) noise (white and φ = 0.5, 0.9, 0.97; marginal sd 5
 error much larger than the noise: (a) a slow sine, 10 × the noise sd, given no hint; (b) a saturated square wave
 at 1 Hz, 5 × the noise sd (dry friction of an MR damper: harmonics decaying as 1/k up to Nyquist), with the
 fundamental given; (c) band-limited random error, 10 × the noise sd, 0.3-2 Hz, with the excitation band given.
+Windows of 1, 2 and 4 whole cycles of a slow sine (0.05-0.12 Hz, 2000-5000 samples, test_windows_of_whole_cycles)
+hold pure noise, or an orifice law's error 10 × the noise, or friction 5 × the noise, with the fundamental given.
 
 Tolerances: φ and σ_e within :data:`K_SE` of their standard errors. The se are the estimator's own (the Whittle
 information or the profile likelihood, whichever is wider, for the spectrum; the bias-corrected lag-1 fit at
@@ -142,19 +144,84 @@ def test_fallbacks_are_stated():
     short = spectral_noise(rng.normal(0.0, 10.0, 60), 100.0)  # 60 samples: under MIN_BINS bins
     assert short.phi == 0.0 and math.isinf(short.phi_se) and "first differences" in short.source
     assert abs(short.sigma_e - 10.0) <= K_SE * short.sigma_e_se
-    t = np.arange(200) / 100.0  # two cycles of a 1 Hz test: the harmonics' exclusions leave nothing
+    t = np.arange(200) / 100.0  # two cycles of a 1 Hz test: every bin is a harmonic or next to one, but the
+    # cycles differ only by the noise (this record fell back to the differences while every harmonic was masked)
     few = spectral_noise(rng.normal(0.0, 5.0, 200) + 25.0 * np.tanh(np.sin(2 * np.pi * t) / 0.05), 100.0,
                          fundamental_hz=1.0)
-    assert "first differences" in few.source and "usable bins" in few.source
-    assert 3.0 < few.sigma_e < 10.0  # the median outvotes the four jumps
+    assert "2 cycles about their mean" in few.source and math.isfinite(few.phi_se)
+    assert abs(few.phi) <= K_SE * few.phi_se and abs(few.sigma_e - 5.0) <= K_SE * few.sigma_e_se
     wide = spectral_noise(rng.normal(0.0, 5.0, 2000), 100.0, input_band_hz=(1.0, 20.0))  # 3 x 20 Hz > Nyquist
-    assert "first differences" in wide.source
+    assert "first differences" in wide.source and "usable bins" in wide.source and "too short" in wide.source
     flat = spectral_noise(np.full(500, 3.0), 100.0)
     assert flat.sigma_e == 0.0 and "no scatter" in flat.source
     with pytest.raises(ValueError):
         spectral_noise(np.array([1.0, np.nan, 2.0, 3.0]), 100.0)
     with pytest.raises(ValueError):
         spectral_noise(rng.normal(size=500), 100.0, fundamental_hz=60.0)
+
+
+def v_abs_v(rng, theta, sd):
+    """Smooth periodic model error: an orifice law's v|v| with a linear and a second-harmonic part (harmonics at
+    k = 1, 2, 3, 5, 7 ..., the odd ones falling as k⁻³), rms 10 x the noise sd."""
+    f = np.sin(theta) * np.abs(np.sin(theta)) + 0.4 * np.cos(theta + 0.7) + 0.15 * np.sin(2.0 * theta)
+    return 10.0 * sd * f / f.std()
+
+
+def friction(rng, theta, sd):
+    """Dry friction under a sine: a square wave 5 x the noise sd, harmonics falling as 1/k up to k ~ 20."""
+    return 5.0 * sd * np.tanh(np.sin(theta) / 0.05)
+
+
+#: Windows of whole cycles as the identification cuts them: (cycles, fundamental [Hz], rate [Hz]); the last has a
+#: period of 1041.67 samples, so its cycles start up to half a sample off the grid (turned back in phase).
+WINDOWS = [(1, 0.05, 100.0), (2, 0.1, 250.0), (4, 0.12, 125.0)]
+#: Every window with pure noise, the smooth and the friction error, at every φ; but one cycle of friction over the
+#: noise's AR(1) knee (φ ≥ 0.9 here), which cannot be read (test_one_cycle_of_friction_looks_like_a_larger_phi).
+CYCLE_CASES = [pytest.param(*w, e, phi, id=f"{w[0]} cycle(s)-{getattr(e, '__name__', 'noise')}-{phi}")
+               for w in WINDOWS for e in (None, v_abs_v, friction) for phi in (0.0, 0.5, 0.9, 0.97)
+               if not (w[0] == 1 and e is friction and phi >= 0.9)]
+
+
+@pytest.mark.parametrize(("cycles", "f0", "fs", "error", "phi"), CYCLE_CASES)
+def test_windows_of_whole_cycles(cycles, f0, fs, error, phi):
+    """Windows of 1, 2 and 4 whole cycles of a slow sine (every periodogram bin a harmonic or next to one): the
+    pure-noise residual of an exact model, and one with periodic model error, the fundamental given. One cycle
+    is read with the harmonics excluded where in excess of the noise, two or more cycle against cycle; none
+    falls back to the differences (φ = 0 assumed). Reseeded 40 times per case (1360 runs): z of φ mean -0.31 to
+    +0.33, sd 0.75-1.18; z of σ_e mean -0.51 to +0.33, sd 0.71-1.33. 12 runs failed an assertion: 8 by a false
+    stop of the low-edge search tens of Hz up (step 4 tests each block at its own level: 1-3 % of records of this
+    length stop falsely, whole records as well, and φ is then undetermined), 1 where that left the two cycles no
+    bins (the excess rule then recovered φ), 3 by |z| = 3.4-3.6 read on log(1 − φ)."""
+    rng = np.random.default_rng([cycles, int(1000 * phi), 0 if error is None else 1 + (error is friction)])
+    sd = 5.0 if phi in (0.0, 0.9) else 30.0
+    n = int(round(cycles * fs / f0))
+    theta = 2.0 * np.pi * f0 * np.arange(n) / fs + rng.uniform(0.0, 2.0 * np.pi)
+    residual = ar1(rng, n, phi, sd) + (0.0 if error is None else error(rng, theta, sd))
+    est = spectral_noise(residual, fs, fundamental_hz=f0)
+    sigma_e = sd * math.sqrt(1.0 - phi * phi)
+    assert est.source.startswith("spectrum") and math.isfinite(est.phi_se), est.source
+    assert ("cycles about their mean" in est.source) == (cycles >= 2), est.source
+    assert est.phi_se < MAX_PHI_SE, est.source
+    assert within(est.phi, est.sigma_e, phi, sigma_e, est.phi_se), (est.phi, est.phi_se, est.sigma_e, est.source)
+    assert abs(est.sigma_e / sigma_e - 1.0) <= K_SE * est.sigma_e_se / sigma_e
+    if error is not None:
+        phi_naive, sigma_e_naive = naive(residual)
+        assert phi_naive > 0.93
+        assert not within(phi_naive, sigma_e_naive, phi, sigma_e, est.phi_se)
+
+
+@pytest.mark.xfail(strict=True, reason="one cycle cannot tell a 1/k harmonic series over the AR(1) knee from a "
+                                       "larger φ (module docstring, Periodic records c)")
+def test_one_cycle_of_friction_looks_like_a_larger_phi():
+    """One 20 s cycle at 100 Hz, φ = 0.9 (knee at bin 32 of 1000), friction's harmonics above the noise to bin ~25:
+    the periodogram is that of an AR(1) with φ ~ 0.99 to within its scatter (79 of 100 seeds outside the
+    tolerance, mean z +5.7). At φ = 0.97 (knee at bin 10) 3 of 100 are, and the se exceeds MAX_PHI_SE in 1 of
+    10, so neither is in test_windows_of_whole_cycles; two cycles of the same test: 0 of 100."""
+    rng = np.random.default_rng(9)
+    n, sd = 2000, 5.0
+    theta = 2.0 * np.pi * 0.05 * np.arange(n) / 100.0 + rng.uniform(0.0, 2.0 * np.pi)
+    est = spectral_noise(ar1(rng, n, 0.9, sd) + friction(rng, theta, sd), 100.0, fundamental_hz=0.05)
+    assert within(est.phi, est.sigma_e, 0.9, sd * math.sqrt(1.0 - 0.81), est.phi_se), (est.phi, est.phi_se)
 
 
 @pytest.mark.parametrize(("phi", "length", "count"), [(0.0, 400, 6), (0.5, 400, 6), (0.9, 400, 6), (0.97, 1500, 4)])

@@ -99,11 +99,11 @@ def test_killed_run_resumes_without_touching_finished_transients(data, reference
 
     again = subprocess.run(identify_cmd(data, out), cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert again.returncode == 0, again.stderr
-    assert f"resumed 1 finished transient(s) from {post}" in again.stderr
+    assert f"resumed 1 finished window(s) from {post}" in again.stderr
     # not a terminal: one summary line per phase, with counts and wall time, and no bar
     phases = [ln for ln in again.stderr.splitlines() if ": " in ln and " in " in ln and ln.endswith(("s", ")"))]
-    assert any(ln.startswith("load, classify, segment, stage 1: 1 data set in ") for ln in phases), again.stderr
-    assert any(re.fullmatch(r"stage 2 \(\w+\): sampling: 1/1 transient in [\d.]+ s \([01] converged, 1 resumed\)", ln)
+    assert any(ln.startswith("load, classify, windows, stage 1: 1 data set in ") for ln in phases), again.stderr
+    assert any(re.fullmatch(r"posteriors \(\w+\): 1/1 window in [\d.]+ s \([01] converged, 1 resumed\)", ln)
                for ln in phases), again.stderr
     assert "\r" not in again.stderr and "it/s" not in again.stderr
     after = tree_state(post)

@@ -206,7 +206,8 @@ def test_write_identify_figures(tmp_path, static_fit, results, entries):
     summary = {"segments": entries, "credible_mass": 0.9, "drift": {},
                "settings": {"sampler": {"n_ensembles": N_ENSEMBLES}}}
     out = write_identify_figures(tmp_path, None, [], static_fit, results[:2], summary)
-    assert set(out) == {"figure3_static", "figure8_transients", "figure9_drift", "corner", "trace"}
+    assert set(out) == {"figure3_static", "figure8_transients", "figure9_drift", "loops", "corner", "trace"}
+    assert out["loops"] == []  # loops are drawn for windows of whole cycles only (tests/test_cycle_windows.py)
     assert out["figure3_static"] == ["figures/figure3_static.png", "figures/figure3_static.pdf"]
     assert out["corner"] == [f"figures/corner/{r.entry['id']}.png" for r in results[:2]]
     for paths in out.values():

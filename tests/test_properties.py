@@ -18,6 +18,7 @@ from bayesdamper.inference.likelihood import LogPosterior, make_noise_model
 from bayesdamper.inference.priors import ALPHA_V_BOUNDS, P_R_BOUNDS, PHI_BOUNDS, ParameterSpace
 from bayesdamper.inference.problem import LIKELIHOOD_ATOL, LIKELIHOOD_RTOL, WindowProblem
 from bayesdamper.io.dataset import COLUMNS, DAMPER_FILE, load_dataset
+from bayesdamper.physics.excitation import PiecewisePolynomial
 from bayesdamper.physics.single_state import solve_single_state
 
 #: Examples per loader property (files are tiny: each example is a few milliseconds).
@@ -176,7 +177,8 @@ def _problem() -> WindowProblem:
     dp, status, _ = _solve(1 / 0.03, 3e5, velocity, 0.0)
     assert status == 0
     force = d.piston_area * dp + 20.0 * np.random.default_rng(0).standard_normal(T_OUT.size)
-    return WindowProblem("fuzz_s0", T_OUT, force, 0.0, 0.0, knot_t, knot_y, d, PAPER_FLOW)
+    return WindowProblem("fuzz_s0", T_OUT, force, 0.0, 0.0, PiecewisePolynomial.from_knots(knot_t, knot_y), d,
+                         PAPER_FLOW)
 
 
 PROBLEM = _problem()

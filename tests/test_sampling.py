@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.inference.identify import identify_window
 from bayesdamper.inference.priors import ParameterSpace
 from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
-from bayesdamper.inference.identify import identify_window
 from bayesdamper.inference.stage2 import StageTwoSettings, shape_report
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record

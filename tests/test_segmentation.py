@@ -166,17 +166,20 @@ def test_transient_windows_start_at_step(load_triangle, fs):
         in_window = (rec.time >= tr.time[0]) & (rec.time <= tr.time[-1])
         np.testing.assert_array_equal(tr.force, rec.force[in_window])
         np.testing.assert_array_equal(tr.displacement, rec.displacement[in_window])
-        assert tr.knot_times[0] == tr.t_step
-        assert tr.knot_times[-1] == pytest.approx(tr.t_step + tmax)
-        assert tr.duration == pytest.approx(tmax)
-        np.testing.assert_allclose(
-            tr.knot_displacements, seg.fitted_displacement(tr.knot_times), rtol=0, atol=1e-12
-        )
+        # the record's input is the fitted piecewise-linear displacement through every knot
+        np.testing.assert_array_equal(tr.drive.breaks, seg.knot_times)
+        assert tr.drive.degree == 1 and tr.drive.restart.all()  # every knot a velocity step
+        # the window's own input runs from the step to the last sample
+        local = tr.local_drive
+        assert local.start == tr.t_step
+        assert local.end == pytest.approx(tr.time[-1], abs=1e-9)
+        assert tr.duration == pytest.approx(tmax, abs=dt)
+        np.testing.assert_allclose(local.displacement(local.breaks), seg.fitted_displacement(local.breaks), rtol=0,
+                                   atol=1e-12)
         # the fitted line in the window moves at the step's velocity
-        slope = np.diff(tr.knot_displacements) / np.diff(tr.knot_times)
-        assert slope == pytest.approx(step.velocity_after, rel=1e-9)
+        assert local.coefs[:, 1] == pytest.approx(step.velocity_after, rel=1e-9)
         assert tr.dp0 == pytest.approx(step.force / AREA)
-        for a in (tr.time, tr.displacement, tr.force, tr.knot_times, tr.knot_displacements):
+        for a in (tr.time, tr.displacement, tr.force, tr.drive.breaks, tr.drive.coefs):
             assert not a.flags.writeable
 
 

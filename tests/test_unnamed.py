@@ -71,15 +71,13 @@ def test_signature_starts_and_library_candidates_map_time_scales_by_unit():
 def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     """A profile with a narrow well at 3 Hz between the grid's frequencies (0.2, 6.3, 200 Hz on poppet_valve's
     log axis): the grid and the local search alone stay on the plateau; started at part 1's 2.9 Hz they find it."""
-    from types import SimpleNamespace
-
     import numpy as np
-    from profile_fakes import FakeProfileEngine
+    from profile_fakes import FakeProfileEngine, fake_problem
 
     from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
     class Engine(FakeProfileEngine):
-        problems = [SimpleNamespace(force=np.ones(50))]
+        problems = [fake_problem(np.ones(50))]
 
         def evaluate(self, eff, flow=None, keep=False, idx=None):
             p = eff["poppet_valve"]

@@ -12,8 +12,10 @@ difference of Gaussian log predictive densities with one unknown scale,
     d_g = -(N_eff,g / 2) log(S_g,candidate / S_g,current),
 
 and the gain Σ_g d_g has the standard error sqrt(G var(d_g)) (the usual estimate for K-fold
-cross-validation, Vehtari, Gelman & Gabry 2017). Against a runner-up the same is done on the paired
-differences of the two candidates' d_g.
+cross-validation, Vehtari, Gelman & Gabry 2017). A fold whose gain is an outlier among the folds' gains (the Hampel
+identifier, :func:`outlying_folds`) is set aside and reported: one fold whose speeds the re-fitted shared parameters
+extrapolate to badly can neither veto an effect the other folds support nor carry one they do not. Against a
+runner-up the same is done on the paired differences of the two candidates' d_g.
 """
 
 from __future__ import annotations
@@ -36,16 +38,52 @@ SPEED_RESOLUTION_M_S = 1.0e-6
 FOLD_ITER = 4
 
 
+#: A fold whose gain lies further than this many robust standard deviations (1.4826 MAD) from the folds' median
+#: is an outlier: the Hampel identifier with its usual constant, 3 (for Gaussian fold gains a given fold is flagged
+#: with probability 0.3 %). Such a fold is one whose held-out speeds the re-fitted shared parameters extrapolate to
+#: badly (or well) out of all proportion to the others: it is reported and set aside, so it can neither veto an
+#: effect every other fold supports nor carry one that the others do not.
+OUTLIER_MADS = 3.0
+#: Largest share of the folds that may be set aside as outliers (more is no longer "one fold that extrapolates
+#: badly": the rule is then applied to all of them).
+MAX_OUTLIER_SHARE = 1.0 / 3.0
+
+
+def outlying_folds(d: np.ndarray) -> np.ndarray:
+    """Boolean mask of the outlying folds of the per-fold gains ``d`` (:data:`OUTLIER_MADS`); none flagged when
+    more than :data:`MAX_OUTLIER_SHARE` of them would be, or with fewer than 4 folds (no robust scale)."""
+    d = np.asarray(d, dtype=float)
+    if d.size < 4:
+        return np.zeros(d.size, dtype=bool)
+    med = float(np.median(d))
+    mad = 1.4826 * float(np.median(np.abs(d - med)))
+    scale = max(mad, 1e-9 * float(np.max(np.abs(d))), 1e-300)
+    out = np.abs(d - med) > OUTLIER_MADS * scale
+    return out if out.sum() <= MAX_OUTLIER_SHARE * d.size else np.zeros(d.size, dtype=bool)
+
+
 @dataclass(frozen=True)
 class LovoScore:
-    """Leave-velocities-out gain of a candidate over the current model."""
+    """Leave-velocities-out gain of a candidate over the current model.
+
+    ``gain`` and ``se`` are over the folds that are not outliers (:func:`outlying_folds`); ``per_fold`` holds every
+    fold's gain and ``outliers`` which of them were set aside.
+    """
 
     gain: float
     se: float
     per_fold: tuple[float, ...]
+    outliers: tuple[bool, ...] = ()
+
+    @property
+    def kept(self) -> tuple[float, ...]:
+        """The gains of the folds that are not outliers."""
+        mask = self.outliers or (False,) * len(self.per_fold)
+        return tuple(d for d, o in zip(self.per_fold, mask, strict=True) if not o)
 
     def as_dict(self) -> dict:
-        return {"gain": self.gain, "se": self.se, "per_fold": list(self.per_fold)}
+        return {"gain": self.gain, "se": self.se, "per_fold": list(self.per_fold),
+                "outlying_folds": [i for i, o in enumerate(self.outliers) if o]}
 
 
 #: Transients above which a search's grid stage runs on a screening subset (:func:`screening_subset`): the grid
@@ -104,7 +142,7 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
     ``cand_specs`` / ``cur_specs``: the free candidates of each model with their full-data values
     (``{effect: {param: value}}``); ``cache`` keeps the current model's held-out SSE across candidates.
     """
-    all_idx = np.arange(len(engine.problems))
+    all_idx = np.arange(engine.n)
     d = []
     for g, test in enumerate(folds):
         train = np.setdiff1d(all_idx, test)
@@ -118,12 +156,16 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
         s_cand = _fold_sse(engine, cand_specs, cand_values, {}, current_sse, n_eff, flow_for, pack, train, test)
         d.append(-0.5 * float(n_eff[test].sum()) * math.log(max(s_cand, 1e-300) / max(s_cur, 1e-300)))
     d = np.array(d)
-    se = float(math.sqrt(len(d) * np.var(d, ddof=1))) if len(d) > 1 else float("inf")
-    return LovoScore(float(d.sum()), se, tuple(float(x) for x in d))
+    out = outlying_folds(d)
+    k = d[~out]
+    se = float(math.sqrt(len(k) * np.var(k, ddof=1))) if len(k) > 1 else float("inf")
+    return LovoScore(float(k.sum()), se, tuple(float(x) for x in d), tuple(bool(o) for o in out))
 
 
 def paired(a: LovoScore, b: LovoScore) -> dict:
-    """Gain of ``a`` over ``b`` with the standard error of the paired fold differences."""
+    """Gain of ``a`` over ``b`` with the standard error of the paired fold differences (outlying differences set
+    aside as in :func:`lovo_score`)."""
     diff = np.array(a.per_fold) - np.array(b.per_fold)
+    diff = diff[~outlying_folds(diff)]
     se = float(math.sqrt(len(diff) * np.var(diff, ddof=1))) if len(diff) > 1 else float("inf")
     return {"gain": float(diff.sum()), "se": se}

@@ -17,7 +17,16 @@ import numpy as np
 from bayesdamper.core.params import FlowCoefficients
 from bayesdamper.diagnosis.residual import SMOOTH_S, plateau_noise
 
-__all__ = ["baseline_residuals", "pooled_noise", "stage_one_for", "warm_start", "window_noise_dict"]
+__all__ = ["baseline_residuals", "pooled_noise", "search_problems", "stage_one_for", "warm_start",
+           "window_noise_dict"]
+
+#: Largest number of samples of a window in the candidate search: every q-th sample above it (the search compares
+#: sums of squares; the final model's posterior uses every sample). 2000 samples hold 10 s at 200 Hz.
+MAX_SEARCH_SAMPLES = 2000
+#: A window of whole cycles enters the search's grid stage (which only picks where each refinement starts) by its
+#: first stretch of this many cycles, but at least :data:`SCREEN_MIN_S`: the grid's cost is the solves', which
+#: grows with the duration.
+SCREEN_CYCLES, SCREEN_MIN_S = 2.0, 2.0
 
 #: Effects whose force changes the plateaus (so stage 1 is fitted again with them): their parameter giving the
 #: constant force [N] along the motion, signed with the velocity (friction) or not (an offset).
@@ -119,3 +128,45 @@ def stage_one_for(plateaus, area: float, source: str):
         return fit_static(corr, source=source)
 
     return flow_for
+
+
+def _subsampled(window, q: int, t_end: float | None = None):
+    """The window's times and forces, every ``q``-th sample, up to ``t_end`` [s]."""
+    keep = np.ones(window.time.size, dtype=bool) if t_end is None else window.time <= t_end
+    return window.time[keep][::q], window.force[keep][::q]
+
+
+def search_problems(windows, results, damper, flow0, max_steps_per_sample: int):
+    """The candidate search's problems (:class:`~bayesdamper.inference.problem.EffectsProblem`) of the windows, their
+    warm starts at the baseline posterior, and the screening stretches of windows of whole cycles with theirs.
+
+    A window that starts in motion starts from the force its baseline estimated there (data, not a parameter of
+    the search); more than :data:`MAX_SEARCH_SAMPLES` samples are thinned. Returns ``(problems, warm, screen,
+    screen_warm)``; the screening lists are None when no window is of whole cycles.
+    """
+    from bayesdamper.inference.problem import EffectsProblem
+
+    area = damper.piston_area
+    problems, warm, screen, screen_warm = [], [], [], []
+    for w, res in zip(windows, results, strict=True):
+        e = res.entry
+        start = None if w.starts_settled or "dp0_Pa" not in e else float(e["dp0_Pa"]["median"]) * area
+        q = max(1, int(np.ceil(w.time.size / MAX_SEARCH_SAMPLES)))
+        t, f = _subsampled(w, q)
+        prob = EffectsProblem.from_window(w, damper, flow0, time=t, force=f, start_force=start,
+                                          max_steps=max_steps_per_sample * t.size)
+        problems.append(prob)
+        warm.append(warm_start(prob, e, area))
+        if w.kind == "cycles":
+            span = max(SCREEN_CYCLES * float(w.info.get("cycle_s", 0.0)), SCREEN_MIN_S)
+            t, f = _subsampled(w, q, w.t_step + span)
+            if t.size < w.time[::q].size:
+                sp = EffectsProblem.from_window(w, damper, flow0, time=t, force=f, start_force=start,
+                                                max_steps=max_steps_per_sample * t.size)
+                screen.append(sp)
+                screen_warm.append(warm_start(sp, e, area))
+    if not screen:
+        return problems, warm, None, None
+    if len(screen) < len(problems):  # transients beside the cycles: the screen keeps them whole
+        return problems, warm, None, None
+    return problems, warm, screen, screen_warm

@@ -212,7 +212,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     hi = np.array([max(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])
     new = tuple(new if new is not None else (s.label for s in specs if s.label not in start))
     n_new = sum(len(ps) for spec, ps in groups if spec.label in new)
-    sel = np.arange(len(engine.problems)) if idx is None else np.asarray(idx)
+    sel = np.arange(engine.n) if idx is None else np.asarray(idx)
     n_total = float(n_eff[sel].sum())
     cur = float(np.sum(current_sse[sel]))
     cache: dict = {}
@@ -332,7 +332,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     if marginal and len(flat) > 1:
         sd = marginal_sds(objective, z_hat, lo, hi, np.array(sd))
     sse, xs, resid = engine.evaluate(pack(e_hat), flow_for(e_hat))
-    forces = [p.force for p in engine.problems]
+    forces = [p.force for p in engine.problems[:engine.n]]
     jp = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)
     out_params = {}
     for j, ((spec, p), z, s_) in enumerate(zip(flat, z_hat, sd, strict=True)):

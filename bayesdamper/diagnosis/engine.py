@@ -20,6 +20,9 @@ from scipy.optimize import least_squares, minimize
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.inner_fit import lm_step, refit
 
+#: Nelder-Mead finishes a re-fit that least squares could not only up to this many parameters (a transient's two;
+#: a simplex in a window's seven would cost hundreds of solves for little).
+NM_MAX_PARAMETERS = 3
 #: Objective value of parameters that make the model impossible (e.g. negative flow coefficients).
 INFEASIBLE = 1e12
 _PROBLEMS: list = []
@@ -75,7 +78,7 @@ def _inner_fit(args):
         x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
     except (ValueError, np.linalg.LinAlgError):
         x_hat, ok_ls = x0, False
-    if not ok_ls:
+    if not ok_ls and x0.size <= NM_MAX_PARAMETERS:
         simplex = np.vstack([x0, x0 + 0.1 * np.eye(x0.size)])
         res = minimize(sse, x0, method="Nelder-Mead",
                        options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
@@ -108,18 +111,27 @@ class ProfileEngine:
     """Evaluates S_k(ψ) for all transients (in parallel), each re-fit starting from the current model's optimum
     (``warm``) with the Jacobian its transient's last re-fit ended with (``jac``, :mod:`.inner_fit`).
 
-    ``screen``: transients of the searches' grid stage
-    (:func:`bayesdamper.diagnosis.attribution.screening_subset`; None: all).
+    ``screen``: windows of the searches' grid stage (:func:`bayesdamper.diagnosis.attribution.screening_subset`;
+    None: all). ``screen_problems``: short stretches of the windows (:func:`screening_stretches`) that the grid stage
+    evaluates instead, with their own warm starts ``screen_warm``; they are appended after the windows (indices
+    from :attr:`n`), and everything else (the score, the refinement, the intervals) uses the windows.
     """
 
     problems: list
     warm: list  # per window: its own parameters x (EffectsProblem.inner_box)
     workers: int = 1
     screen: np.ndarray | None = None
+    screen_problems: list | None = None
+    screen_warm: list | None = None
 
     def __post_init__(self):
+        self.n = len(self.problems)  # the windows; screening stretches follow them
+        if self.screen_problems:
+            self.problems = list(self.problems) + list(self.screen_problems)
+            self.warm = list(self.warm) + list(self.screen_warm)
+            self.screen = np.arange(self.n, len(self.problems))
         _PROBLEMS[:] = self.problems  # in place: the forked workers and importers see the same list
-        self.jac: list = [None] * len(self.problems)  # each transient's Jacobian from its last re-fit
+        self.jac: list = [None] * len(self.problems)  # each window's Jacobian from its last re-fit
         self._pool = None
         if self.workers > 1:
             import multiprocessing as mp
@@ -152,7 +164,7 @@ class ProfileEngine:
     def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
         """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
         these transients only (then the arrays are over ``idx``)."""
-        ks = range(len(self.problems)) if idx is None else [int(i) for i in idx]
+        ks = range(self.n) if idx is None else [int(i) for i in idx]
         tasks = [(k, eff, flow, self.warm[k], self.jac[k]) for k in ks]
         out = self._map(_inner_fit, tasks)
         xs = [o[0] for o in out]
@@ -161,7 +173,7 @@ class ProfileEngine:
             if o[3] is not None:
                 self.jac[k] = o[3]
         if keep and idx is None:
-            self.warm = list(xs)
+            self.warm[:self.n] = list(xs)
         return sse, xs, [o[2] for o in out]
 
 

@@ -37,8 +37,10 @@ DIFF_STEP = 1e-4
 JAC_REUSE = 0.02
 #: Largest Levenberg-Marquardt damping (relative to the diagonal of JᵀJ) tried before a step is given up.
 LAM_MAX = 1e8
-#: Solves after which the iteration gives up (the caller then falls back to scipy's ``least_squares``).
-MAX_SOLVES = 30
+#: Solves after which the iteration gives up (the caller then falls back to scipy's ``least_squares``): this many
+#: per parameter plus this many, i.e. 30 for a transient's (α_V, p_R) and 66 for a window with its own start force
+#: and flow coefficients (about three differenced Jacobians and their iterations either way).
+MAX_SOLVES_PER_PARAMETER, MAX_SOLVES_BASE = 8, 14
 
 
 @dataclass
@@ -99,7 +101,8 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
     """Least-squares minimum of ``resid(x)`` (an array, or None for a failed solve) in the box [lo, hi].
 
     ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). Returns the best point found
-    and ``converged`` False when :data:`MAX_SOLVES` ran out or the Jacobian could not be differenced; an
+    and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could not be
+    differenced; an
     infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
     """
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
@@ -116,7 +119,8 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
     else:
         J, moved = np.array(jac, dtype=float), np.inf
     lam = 0.0
-    while n < MAX_SOLVES:
+    max_solves = MAX_SOLVES_BASE + MAX_SOLVES_PER_PARAMETER * x.size
+    while n < max_solves:
         dx0, pred0 = _lm_step(J, r, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
         if float(np.linalg.norm(dx0)) < XTOL or 0.0 <= pred0 <= FTOL * s:
             if moved == 0.0:  # predicted by a Jacobian differenced here

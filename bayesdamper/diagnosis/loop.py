@@ -7,7 +7,9 @@ approximation, and with thousands of samples a smooth, tiny improvement of its m
 without being an effect worth adding. Out-of-sample evidence is required too: the option's
 leave-velocities-out predictive gain over the current model must be positive in every held-out fold and,
 with at least ``LOVO_MIN_FOLDS_FOR_SE`` folds, exceed ``LOVO_SE`` = 2 standard errors
-(:mod:`bayesdamper.diagnosis.attribution`); among the options that pass, the largest gain wins. Options
+(:mod:`bayesdamper.diagnosis.attribution`), a fold whose gain is an outlier among the folds' (the Hampel
+identifier: the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside
+and reported; among the options that pass, the largest gain wins. Options
 are single candidates and pairs of the best ones; every option re-fits the effects already selected jointly
 with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
 jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
@@ -122,9 +124,11 @@ LOVO_MIN_FOLDS_FOR_SE = 4
 
 
 def lovo_passes(sc) -> bool:
-    """The out-of-sample part of the rule: every held-out fold better, and gain > LOVO_SE se with enough folds."""
-    every = all(d > 0 for d in sc.per_fold)
-    return bool(every and (len(sc.per_fold) < LOVO_MIN_FOLDS_FOR_SE or sc.gain > LOVO_SE * sc.se))
+    """The out-of-sample part of the rule: every held-out fold better and gain > LOVO_SE se with enough folds, over
+    the folds that are not outliers (:func:`bayesdamper.diagnosis.attribution.outlying_folds`)."""
+    kept = sc.kept
+    every = len(kept) > 0 and all(d > 0 for d in kept)
+    return bool(every and (len(kept) < LOVO_MIN_FOLDS_FOR_SE or sc.gain > LOVO_SE * sc.se))
 
 
 def _option_row(fit, j_cur: float) -> dict:
@@ -253,8 +257,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
                                f"{MIN_J_REDUCTION:.0%}; a pair also over its better member), every held-out speed "
                                "fold better and (with >= "
-                               f"{LOVO_MIN_FOLDS_FOR_SE} folds) leave-velocities-out gain > {LOVO_SE:g} se; the "
-                               "largest gain wins"})
+                               f"{LOVO_MIN_FOLDS_FOR_SE} folds) leave-velocities-out gain > {LOVO_SE:g} se, a fold "
+                               "whose gain is an outlier among the folds' set aside (Hampel, 3 MADs, at most a third "
+                               "of them); the largest gain wins"})
         if best is None:
             break
         fit = next(c for c in fits if c.effect == best["effect"])
@@ -272,7 +277,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         fixed = {k: dict(v) for k, v in fit.effects.items()}
         chosen = {specs[lab].effect for lab in fit.labels}
         remaining = [n for n in remaining if specs[n].effect not in chosen]
-        engine.warm = fit.warm
+        engine.warm[:engine.n] = list(fit.warm)
         sse, xs, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)
         current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     return selected, fixed, rounds

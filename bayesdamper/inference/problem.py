@@ -186,14 +186,17 @@ class EffectsProblem:
         object.__setattr__(self, "flow_scales", np.array([self.p_scale / qmax, self.p_scale / qmax**2] * 2))
 
     @classmethod
-    def from_window(cls, window, damper: DamperConstants, flow: FlowCoefficients | None, **kw) -> EffectsProblem:
-        """Build from a :class:`bayesdamper.io.windows.Window` (its step force when it starts settled; ``flow``
-        None: the flow coefficients are the window's own parameters)."""
-        step_force = float(window.dp0) * damper.piston_area if window.starts_settled else None
+    def from_window(cls, window, damper: DamperConstants, flow: FlowCoefficients | None, *, time=None, force=None,
+                    start_force: float | None = None, **kw) -> EffectsProblem:
+        """Build from a :class:`bayesdamper.io.windows.Window`: its step force when it starts settled, else
+        ``start_force`` [N] if given (else the start force is a parameter); ``flow`` None: the flow coefficients
+        are the window's own parameters; ``time``, ``force``: a subset of the window's samples."""
+        step_force = float(window.dp0) * damper.piston_area if window.starts_settled else start_force
         free = flow is None
         flow = flow if flow is not None else FlowCoefficients(1.0, 1.0, 1.0, 1.0)
-        return cls(window.id, window.time, window.force, float(window.t_step), step_force, float(window.dp0),
-                   window.drive, damper, flow, free_flow=free, **kw)
+        return cls(window.id, window.time if time is None else time, window.force if force is None else force,
+                   float(window.t_step), step_force, float(window.dp0), window.drive, damper, flow, free_flow=free,
+                   **kw)
 
     # ------------------------------------------------------------------ the window's own parameters
     @property

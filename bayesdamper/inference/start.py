@@ -20,9 +20,8 @@ START_P_R = (3e4, 1e5, 3e5, 1e6)
 #: Samples with |v| above this fraction of the window's largest |v| enter the quasi-static start of the flow
 #: coefficients (away from the reversals, where compressibility dominates the force).
 QUASI_STATIC_SPEED = 0.3
-#: Kernel tolerances of the least-squares fit: the adaptive solver's force moves by about its tolerance when a
-#: parameter change shifts its steps; finite differences need that far below their step.
-FIT_RTOL, FIT_ATOL = 1e-8, 1e-3
+#: Kernel tolerances of the least-squares fit: those of the MAP fit (:data:`bayesdamper.inference.joint.FIT_RTOL`).
+FIT_RTOL, FIT_ATOL = 1e-7, 1e-2
 #: Relative finite-difference step of the least-squares Jacobian (solver noise 1e-5 of the difference).
 FD_STEP = 1e-3
 #: Evaluations of the least-squares fit.

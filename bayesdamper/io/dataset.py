@@ -1,11 +1,12 @@
-"""Loading and validating a data set of triangular-displacement tests.
+"""Loading and validating a data set of displacement-force tests.
 
 A data set is a folder holding
 
 * ``damper.toml`` with a ``[damper]`` table of the known damper constants
   (``piston_area_m2``, ``chamber_volume_1_m3``, ``chamber_volume_2_m3``,
   ``liquid_bulk_modulus_Pa``, optional ``name``) and an optional ``[flow]`` table of known flow
-  coefficients of eq. (4) (``C_L12``, ``C_Q12``, ``C_L21``, ``C_Q21``);
+  coefficients of eq. (4) (``C_L12``, ``C_Q12``, ``C_L21``, ``C_Q21``) and an optional ``[condition]`` table
+  (:mod:`bayesdamper.io.damper_file`);
 * one CSV file per test, with a header naming the columns ``time_s``, ``displacement_m`` and
   ``force_N`` (any order; other columns are ignored but an optional measured velocity ``velocity_m_s``),
   sampled at a constant rate, in SI units.
@@ -19,27 +20,17 @@ from __future__ import annotations
 
 import hashlib
 import math
-import tomllib
 from collections.abc import Iterable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
+from bayesdamper.io.damper_file import DAMPER_FILE, read_damper_toml
 
-__all__ = [
-    "COLUMNS",
-    "DAMPER_FILE",
-    "Dataset",
-    "TestRecord",
-    "load_dataset",
-    "load_record",
-]
-
-#: Name of the damper description inside a data-set folder.
-DAMPER_FILE = "damper.toml"
+__all__ = ["COLUMNS", "DAMPER_FILE", "VELOCITY_COLUMN", "Dataset", "TestRecord", "load_dataset", "load_record"]
 
 #: Required CSV columns, in the order the arrays are returned.
 COLUMNS = ("time_s", "displacement_m", "force_N")
@@ -58,23 +49,6 @@ MAX_DISPLACEMENT = 0.5
 
 #: Largest plausible |force| of a damper test [N].
 MAX_FORCE = 1e7
-
-#: ``damper.toml`` keys -> (DamperConstants field, unit, plausible range [lo, hi]).
-_DAMPER_KEYS: dict[str, tuple[str, str, float, float]] = {
-    "piston_area_m2": ("piston_area", "m^2", 1e-6, 1.0),
-    "chamber_volume_1_m3": ("chamber_volume_1", "m^3", 1e-8, 1.0),
-    "chamber_volume_2_m3": ("chamber_volume_2", "m^3", 1e-8, 1.0),
-    "liquid_bulk_modulus_Pa": ("liquid_bulk_modulus", "Pa", 1e7, 1e11),
-}
-
-#: ``[flow]`` keys -> (FlowCoefficients field, unit).
-_FLOW_KEYS: dict[str, tuple[str, str]] = {
-    "C_L12": ("laminar_12", "kg m^-4 s^-1"),
-    "C_Q12": ("quadratic_12", "kg m^-7"),
-    "C_L21": ("laminar_21", "kg m^-4 s^-1"),
-    "C_Q21": ("quadratic_21", "kg m^-7"),
-}
-
 
 def _readonly(a: np.ndarray) -> np.ndarray:
     a = np.ascontiguousarray(a, dtype=float)
@@ -147,6 +121,9 @@ class Dataset:
         Flow coefficients of eq. (4) if ``damper.toml`` has a ``[flow]`` table (never required).
     toml_sha256 : str
         SHA-256 of ``damper.toml`` (hex).
+    condition : dict
+        ``{name: value}`` of the ``[condition]`` table: the conditions the data set was recorded under (a charge
+        pressure, a temperature, a valve setting), numbers in the units their names say; empty if none.
     """
 
     path: Path
@@ -155,6 +132,7 @@ class Dataset:
     records: tuple[TestRecord, ...]
     known_flow: FlowCoefficients | None
     toml_sha256: str
+    condition: dict = field(default_factory=dict)
 
     def input_hashes(self) -> dict[str, str]:
         """Return ``{file name: SHA-256}`` of every input file, ``damper.toml`` first."""
@@ -176,77 +154,6 @@ class Dataset:
             if r.name == name:
                 return r
         raise KeyError(name)
-
-
-# ---------------------------------------------------------------------------------------------
-# damper.toml
-
-
-def _number(path: Path, table: str, key: str, value: object, unit: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise DataError(f"{path}: [{table}] {key} must be a number in {unit}, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise DataError(f"{path}: [{table}] {key} must be finite, got {v!r}")
-    return v
-
-
-def _read_damper_toml(path: Path) -> tuple[DamperConstants, FlowCoefficients | None, str, str | None]:
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read: {_one_line(e.strerror or e)}") from None
-    sha = hashlib.sha256(raw).hexdigest()
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise DataError(f"{path}: not UTF-8 text (undecodable byte at offset {e.start})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise DataError(f"{path}: TOML syntax error: {_one_line(e)}") from None
-
-    damper = doc.get("damper")
-    if damper is None:
-        raise DataError(f"{path}: missing [damper] table (needs {', '.join(_DAMPER_KEYS)})")
-    if not isinstance(damper, dict):
-        raise DataError(f"{path}: 'damper' must be a table [damper], got {type(damper).__name__}")
-    values: dict[str, float] = {}
-    for key, (fname, unit, lo, hi) in _DAMPER_KEYS.items():
-        if key not in damper:
-            raise DataError(f"{path}: [damper] is missing key {key} [{unit}]")
-        v = _number(path, "damper", key, damper[key], unit)
-        if v <= 0:
-            raise DataError(f"{path}: [damper] {key} must be positive (in {unit}), got {v:g}")
-        if not lo <= v <= hi:
-            raise DataError(
-                f"{path}: [damper] {key} = {v:g} is outside the plausible range "
-                f"[{lo:g}, {hi:g}] {unit}; expected a value in {unit}"
-            )
-        values[fname] = v
-    name = damper.get("name")
-    if name is not None and not isinstance(name, str):
-        raise DataError(f"{path}: [damper] name must be a string, got {name!r}")
-    constants = DamperConstants(**values, name=name or "")
-
-    flow = doc.get("flow")
-    known_flow = None
-    if flow is not None:
-        if not isinstance(flow, dict):
-            raise DataError(f"{path}: 'flow' must be a table [flow], got {type(flow).__name__}")
-        coeffs: dict[str, float] = {}
-        for key, (fname, unit) in _FLOW_KEYS.items():
-            if key not in flow:
-                raise DataError(f"{path}: [flow] is missing key {key} [{unit}] (give all four or no [flow])")
-            v = _number(path, "flow", key, flow[key], unit)
-            if v < 0:
-                raise DataError(f"{path}: [flow] {key} must be >= 0 (in {unit}), got {v:g}")
-            coeffs[fname] = v
-        try:
-            known_flow = FlowCoefficients(**coeffs)
-        except SettingsError as e:
-            raise DataError(f"{path}: [flow] {_one_line(e)}") from None
-    return constants, known_flow, sha, name
 
 
 # ---------------------------------------------------------------------------------------------
@@ -442,8 +349,7 @@ def _read_velocity(path: Path, lines: list[str], n: int) -> np.ndarray | None:
     if VELOCITY_COLUMN not in names:
         return None
     try:
-        v = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=(names.index(VELOCITY_COLUMN),), ndmin=1,
-                       dtype=float)
+        v = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=(names.index(VELOCITY_COLUMN),), ndmin=1)
     except (ValueError, TypeError, OverflowError, IndexError):
         raise DataError(f"{path}: column {VELOCITY_COLUMN} holds something that is not a number") from None
     if v.size != n or not np.all(np.isfinite(v)):
@@ -488,7 +394,7 @@ def load_dataset(path: str | Path, *, tmax: float | None = 3.0) -> Dataset:
     csvs = _csv_files(folder)
     if not csvs:
         raise DataError(f"{folder}: no CSV files (*.csv) in the data-set folder")
-    damper, known_flow, toml_sha, name = _read_damper_toml(toml_path)
+    damper, known_flow, toml_sha, name, condition = read_damper_toml(toml_path)
     if not name:
         damper = replace(damper, name=folder.resolve().name)
     _check_unique(folder, (p.stem for p in csvs))
@@ -500,6 +406,7 @@ def load_dataset(path: str | Path, *, tmax: float | None = 3.0) -> Dataset:
         records=records,
         known_flow=known_flow,
         toml_sha256=toml_sha,
+        condition=condition,
     )
 
 

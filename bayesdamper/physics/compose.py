@@ -95,6 +95,14 @@ class ComposedEffects:
                          if hasattr(EFFECT_MODULES[n], "compliance")))
 
     @functools.cached_property
+    def force_only(self) -> bool:
+        """Every effect only adds a force (no state, no hook in the ODE): eq. (7)'s own kernel solves Δp and the
+        effects' forces are added at the samples (:func:`solve_composed`)."""
+        return all(not getattr(EFFECT_MODULES[n], "STATES", ()) and not any(hasattr(EFFECT_MODULES[n], h)
+                                                                             for h in ODE_HOOKS)
+                   for n in self.names)
+
+    @functools.cached_property
     def layout(self) -> np.ndarray:
         """The kernel's runtime layout of these effects (:func:`layout`)."""
         return layout(self.names)[0]
@@ -115,6 +123,10 @@ def compose(effects: Mapping[str, Mapping[str, float] | None] | None) -> Compose
     out = ComposedEffects(names, np.array(vals, dtype=np.float64))
     _ = out.layout  # checks the combination
     return out
+
+
+#: Hooks that change the ODE or its input (an effect with none of them and no state only adds a force).
+ODE_HOOKS = ("displacement", "compliance", "flow", "pressures", "chamber_flows", "derivatives", "transform_input")
 
 
 # ----------------------------------------------------------------------------- code generation
@@ -345,7 +357,8 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
     """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
 
     ``drive`` is the measured displacement, already through :meth:`ComposedEffects.transform_input` and covering
-    ``[t0, t_out[-1]]``; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`;
+    ``[t0, t_out[-1]]``; ``damper`` a :class:`~bayesdamper.core.params.DamperConstants`; effects that only add a
+    force (:attr:`ComposedEffects.force_only`, eq. (7) itself included) take eq. (7)'s own kernel for Δp;
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
     (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`); ``max_steps``:
     accepted steps after which the solve fails (None: ``composed_template.MAX_STEPS``).
@@ -356,6 +369,12 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
                      damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
     if not (np.all(np.isfinite(base)) and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
         return np.full(np.shape(t_out), np.nan), 5
+    t_out = np.ascontiguousarray(t_out, dtype=float)
+    if composed.force_only and t_out.size and t0 <= t_out[0] and t_out[-1] <= drive.end:
+        w = drive.window(t0, float(max(t_out[-1], t0 + 1e-9)))  # eq. (7) starts at the input's first break
+        return mod.solve_force_only(t_out, w.breaks, w.coefs, w.restart, float(dp0), float(v_prev), base,
+                                    np.ascontiguousarray(composed.values), float(rtol), float(atol), bool(from_force),
+                                    composed.layout)
     return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), drive.breaks, drive.coefs, drive.restart,
                               float(t0), float(dp0), float(v_prev),
                               base, np.ascontiguousarray(composed.values), float(rtol), float(atol),

@@ -39,6 +39,7 @@ from bayesdamper.physics.rodas import (
 )
 from bayesdamper.physics.single_state import drive as _drive
 from bayesdamper.physics.single_state import next_restart as _next_restart
+from bayesdamper.physics.single_state import solve_eq7 as _solve_eq7
 
 #: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
@@ -107,6 +108,51 @@ def _rhs(t, s, ds, sig, prm, base, brk, coef, seg, lay):
     ya, va, aa, j = _drive(t, brk, coef, seg[0], seg[1], seg[2])
     seg[2] = j
     return _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay)
+
+
+@njit(cache=True, error_model="numpy")
+def solve_force_only(t_out, brk, coef, restart, dp0, v_prev, base, prm, rtol, atol, from_force, lay):
+    """Force at ``t_out`` of eq. (7) with effects that only add a force (no state, nothing in the ODE): Δp by the
+    eq. (7) kernel (:func:`~bayesdamper.physics.single_state.solve_eq7`, its analytic Jacobian), the effects'
+    forces at the samples. The input starts at the solution's start ``brk[0]``; other arguments as
+    :func:`solve_composed`.
+    """
+    n_t = t_out.shape[0]
+    out = np.full(n_t, np.nan)
+    sig = np.full(N_SIGNALS, np.nan)
+    x = np.zeros(1)
+    f0 = np.zeros(1)
+    seg = np.zeros(3, dtype=np.int64)
+    m = brk.shape[0] - 1
+    if n_t == 0:
+        return out, STATUS_OK
+    if m < 1 or coef.shape[0] != m or not math.isfinite(dp0):
+        return out, STATUS_BAD_INPUT
+    t0 = brk[0]
+    ya0 = coef[0, 0]
+    if from_force:  # the effects' force in the steady state before t0 does not depend on Δp: one step
+        f_target = dp0
+        dp0 = f_target / base[B_AREA]
+        if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)
+                and _rhs_at(t0, x, f0, sig, prm, base, ya0, v_prev, 0.0, lay)):
+            return out, STATUS_NONFINITE
+        dp0 -= (_force(sig, x, prm, base, lay) - f_target) / base[B_AREA]
+    fl = base[B_FL0:B_FL3 + 1].copy()
+    dp, status, _ = _solve_eq7(t_out, brk, coef, restart, dp0, base[B_AREA], base[B_V01], base[B_V02], base[B_B0], fl,
+                               base[B_ALPHA], base[B_PR], 0, 0.0, rtol, atol)
+    if status != STATUS_OK:
+        return out, status
+    seg[1] = _next_restart(restart, 0)
+    for i in range(n_t):  # the effects' forces at the samples, from the same hooks as the full kernel
+        while seg[1] < m and t_out[i] > brk[seg[1]]:  # a sample on a velocity step takes the piece ending there
+            seg[0] = seg[1]
+            seg[2] = seg[1]
+            seg[1] = _next_restart(restart, seg[0])
+        x[0] = dp[i]
+        if not _rhs(t_out[i], x, f0, sig, prm, base, brk, coef, seg, lay):
+            return out, STATUS_NONFINITE
+        out[i] = _force(sig, x, prm, base, lay)
+    return out, STATUS_OK
 
 
 @njit(cache=True, error_model="numpy")

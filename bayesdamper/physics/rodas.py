@@ -19,8 +19,9 @@ from numba import njit
 DEFAULT_RTOL = 1e-6
 #: Default absolute tolerance of the kernel [Pa] (4e-5 N on rig A; dominates only for |Δp| < 1e4 Pa).
 DEFAULT_ATOL = 1e-2
-#: Maximum number of accepted steps of one kernel solve.
-MAX_STEPS = 20_000
+#: Maximum number of accepted steps of one kernel solve: a 30 s window of a 5 Hz sine takes some 30 000 at rtol
+#: 1e-7; the budget stops a pathological parameter set (a solve that would never finish) within a second.
+MAX_STEPS = 200_000
 STATUS_OK, STATUS_NONFINITE, STATUS_STEP_UNDERFLOW = 0, 1, 2
 STATUS_MAX_STEPS, STATUS_VOLUME, STATUS_BAD_INPUT = 3, 4, 5
 STATUS_MESSAGES = {
