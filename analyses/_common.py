@@ -14,7 +14,7 @@ from pathlib import Path
 import bayesdamper as bd
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, WindowResult
-from bayesdamper.io.segments import Transient
+from bayesdamper.io.windows import Window
 
 #: Repository root (this file lives in ``<root>/analyses``).
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +60,7 @@ def sampling_choice(args: argparse.Namespace) -> tuple[int | None, str | None]:
     return max_steps, only
 
 
-def select(transients: list[Transient], only: str | None) -> list[Transient]:
+def select(transients: list[Window], only: str | None) -> list[Window]:
     """The transients named in ``only`` (comma-separated ids), all if None; unknown ids are an error."""
     if not only:
         return list(transients)

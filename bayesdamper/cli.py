@@ -15,8 +15,9 @@ bayesdamper reads a data set (a folder with damper.toml and one CSV per test: ti
 force [N]), cuts its triangular tests into plateaus and transients, fits the static orifice coefficients of
 eq. (8) from the plateaus (stage 1), samples the posterior of the liquid-gas ratio alpha_V and the reference
 pressure p_R of eq. (6) for every transient with emcee (stage 2), checks convergence, and diagnoses what the
-single-state model eq. (7) misses. Sine, sweep, multisine or random records are identified as whole records
-(flow coefficients, alpha_V and p_R sampled jointly); the mode is chosen from the data (--mode)."""
+single-state model eq. (7) misses. Sine, sweep, multisine or random records are cut into windows of whole
+cycles, each identified with its flow coefficients, alpha_V and p_R sampled together; every window goes through
+the same likelihood, sampler and diagnosis as a transient."""
 
 EPILOG = """\
 examples:
@@ -76,8 +77,10 @@ def _mass(text: str) -> float:
     return v
 
 
-_MODE_HELP = ("how to identify: auto (two-stage when every record is a triangular test, else whole-record), "
-              "two-stage or whole-record (default: %(default)s)")
+_MODE_HELP = ("how to window the records: auto (each record as its kind says: transients and plateaus of a "
+              "triangular test, windows of whole cycles of any other record), two-stage (every record must be a "
+              "triangular test) or whole-record (every record in windows of whole cycles, no stage 1) "
+              "(default: %(default)s)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -148,8 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "(default: local worker processes)")
         i.add_argument("--noise-model", default="plateau", choices=["plateau", "ar1", "white"],
                        help="noise model of the eq. (9) likelihood: plateau = AR(1) with its coefficient and "
-                            "scale estimated from the plateaus and held fixed (whole records, which have no "
-                            "plateaus: ar1); ar1 = AR(1) of the residual, coefficient sampled; white "
+                            "scale estimated from the plateaus and held fixed (windows of cycles, which have no "
+                            "plateaus: estimated from the residual's spectrum away from the excitation's "
+                            "band and harmonics); ar1 = AR(1) of the residual, coefficient sampled; white "
                             "(default: %(default)s)")
         i.add_argument("--conditional", action="store_true",
                        help="condition stage 2 on the stage-1 flow coefficients and the mean step force, as "

@@ -24,9 +24,12 @@ def test_pass_rule_every_fold_and_se_with_enough_folds():
     # three folds: every fold better suffices (2 df: no usable normal se), one worse fails
     assert lovo_passes(LovoScore(550.0, 268.0, (10.0, 240.0, 300.0)))
     assert not lovo_passes(LovoScore(530.0, 268.0, (-10.0, 240.0, 300.0)))
-    # six folds: also > 2 se
-    assert lovo_passes(LovoScore(573.0, 150.0, (194.0, 51.0, 70.0, 77.0, 36.0, 145.0)))
-    assert not lovo_passes(LovoScore(60.0, 40.0, (1.0, 1.0, 1.0, 1.0, 1.0, 55.0)))
+    # four folds: every fold better is no significant sign test (1/16): also > 2 se
+    assert lovo_passes(LovoScore(420.0, 150.0, (194.0, 51.0, 70.0, 105.0)))
+    assert not lovo_passes(LovoScore(58.0, 40.0, (1.0, 1.0, 1.0, 55.0)))
+    # five folds and more: every fold better is the sign test at 2^-5 = 3.1 %, whatever the se of unequal folds
+    assert lovo_passes(LovoScore(218.0, 138.6, (11.0, 7.0, 9.0, 39.0, 152.0)))
+    assert not lovo_passes(LovoScore(200.0, 50.0, (-1.0, 51.0, 50.0, 50.0, 50.0)))
 
 
 def test_paired_difference_and_its_se():

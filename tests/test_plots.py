@@ -1,6 +1,9 @@
-"""Plot functions return Figures with the expected axes and artists (synthetic inputs, no sampling)."""
+"""Plot functions return Figures with the expected axes and artists (synthetic inputs, no sampling), for
+transients and windows of cycles; the identify and diagnosis figure writers draw what each kind of window needs."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -13,7 +16,7 @@ from matplotlib.figure import Figure  # noqa: E402
 
 from bayesdamper.inference.stage1 import StaticFit, fit_direction  # noqa: E402
 from bayesdamper.inference.stage2 import WindowResult  # noqa: E402
-from bayesdamper.report import diagnostic_plots, paper_figures, style  # noqa: E402
+from bayesdamper.report import diagnostic_plots, figures, paper_figures, style  # noqa: E402
 from bayesdamper.report.figures import write_identify_figures  # noqa: E402
 
 #: Relative tolerance for reading plotted values back (float64 round trip through display scaling).
@@ -213,3 +216,114 @@ def test_write_identify_figures(tmp_path, static_fit, results, entries):
     for paths in out.values():
         for p in paths:
             assert (tmp_path / p).stat().st_size > 0
+
+
+# ------------------------------------------------------------------------------------------- windows of cycles
+def _cycle_entry(i: int, v: float = 0.063) -> dict:
+    e = _entry(i, 0, "cycles", v)
+    e.update(id=f"sine{i}_w0", test=f"sine{i}")
+    return e
+
+
+def _cycle_result(entry: dict, seed: int = 0) -> WindowResult:
+    """A window of 3 cycles of a 1 Hz sine: force 200 sin(2π t + 0.3) N, its predictive band ±5 %."""
+    rng = np.random.default_rng(seed)
+    n_chains = N_ENSEMBLES * N_WALKERS
+    med = np.array([entry["alpha_V"]["median"], entry["p_R_Pa"]["median"], 0.1])
+    chains = med * (1 + 0.05 * rng.standard_normal((n_chains, N_DRAWS, 3)))
+    t = entry["t_start_s"] + np.arange(0, 3.0, 0.01)
+    f = 200.0 * np.sin(2 * np.pi * t + 0.3)
+    band = np.vstack([f - 10.0, f, f + 10.0])
+    return WindowResult(entry, NAMES, chains, t, f + rng.standard_normal(t.size), band, 0.99 * f)
+
+
+def _window(result: WindowResult) -> SimpleNamespace:
+    """What the figures read of a :class:`bayesdamper.io.windows.Window`: a 10 mm, 1 Hz sine as the input."""
+    e = result.entry
+    t = np.asarray(result.time)
+    return SimpleNamespace(id=e["id"], kind=e["kind"], direction=e["direction"], velocity=e["velocity_m_s"],
+                           time=t, t_step=float(t[0]), displacement=0.01 * np.sin(2 * np.pi * t),
+                           drive=SimpleNamespace(velocity=lambda x: 0.02 * np.pi * np.cos(2 * np.pi * x)))
+
+
+def test_window_loops_against_time_displacement_and_velocity():
+    r = _cycle_result(_cycle_entry(0))
+    w = _window(r)
+    fig = paper_figures.window_loops(r, w.displacement, w.drive.velocity(w.time))
+    ax_t, ax_y, ax_v = fig.axes
+    assert r.entry["id"] in ax_t.get_title() and len(ax_t.collections) == 1  # the predictive band
+    sel = r.time <= r.time[0] + paper_figures.LOOP_TIME_S
+    np.testing.assert_array_equal(ax_t.get_lines()[0].get_xdata(), r.time[sel])
+    measured, median = ax_y.get_lines()
+    np.testing.assert_allclose(measured.get_xdata(), 1e3 * w.displacement, rtol=READBACK_RTOL)
+    np.testing.assert_allclose(median.get_ydata(), r.band[1], rtol=READBACK_RTOL)
+    np.testing.assert_allclose(ax_v.get_lines()[0].get_xdata(), 1e3 * w.drive.velocity(w.time), rtol=READBACK_RTOL)
+    assert "[mm]" in ax_y.get_xlabel() and "[mm/s]" in ax_v.get_xlabel()
+
+
+def test_figure9_places_windows_of_cycles_at_their_peak_speed(entries):
+    cyc = [_cycle_entry(20, 1.26e-3), _cycle_entry(21, 1.27e-3)]
+    fig = paper_figures.figure9_drift(entries + cyc)
+    for ax in fig.axes:
+        containers = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+        assert len(containers) == 5  # the four of the transients and one of the windows of cycles
+        assert sum(len(c.lines[0].get_xdata()) for c in containers) == len(entries) + 2
+        assert "peak" in ax.get_xlabel()
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert "window of cycles (peak speed)" in labels
+    assert "peak" not in paper_figures.figure9_drift(entries).axes[0].get_xlabel()
+
+
+def _residual_rows(results) -> list[dict]:
+    rng = np.random.default_rng(3)
+    return [{"kind": r.entry["kind"], "direction": r.entry["direction"], "velocity_m_s": r.entry["velocity_m_s"],
+             "t": np.asarray(r.time) - r.time[0], "before": rng.normal(0, 20, r.time.size),
+             "after": rng.normal(0, 10, r.time.size)} for r in results]
+
+
+def test_residual_figure_has_a_column_per_group_present(results):
+    cyc = [_cycle_result(_cycle_entry(k), k) for k in range(2)]
+    rows = _residual_rows(results[:2] + cyc)  # an initial (+1), a reversal (-1) and two windows of cycles
+    fig = diagnostic_plots.residual_figure(rows)
+    axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert len(axes) == 6
+    top, bottom = axes[:3], axes[3:]
+    assert [ax.get_title() for ax in top] == ["initial, direction +1", "reversal, direction -1", "windows of cycles"]
+    assert [len(ax.get_lines()) - 1 for ax in top] == [1, 1, 2]  # one line per window, plus the zero line
+    np.testing.assert_array_equal(top[2].get_lines()[0].get_ydata(), rows[2]["before"])  # in N
+    np.testing.assert_array_equal(bottom[2].get_lines()[1].get_ydata(), rows[3]["after"])
+    assert bottom[2].get_xlabel() == "time since the window's start [s]" and "[N]" in top[0].get_ylabel()
+    only = diagnostic_plots.residual_figure(rows[2:])
+    assert [ax.get_title() for ax in only.axes if ax.get_title()] == ["windows of cycles"]
+
+
+@pytest.mark.parametrize("kinds", ["transients", "cycles", "both"])
+def test_write_diagnosis_figures_for_any_windows(tmp_path, results, kinds):
+    base = ([] if kinds == "cycles" else results[:2]) + (
+        [] if kinds == "transients" else [_cycle_result(_cycle_entry(k), k) for k in range(2)])
+    windows = [_window(r) for r in base]
+    resid = [np.zeros(r.time.size) for r in base]
+    diagnosis = {"selected": ["friction"], "drift_before": {}, "drift_after": {}}
+    out = figures.write_diagnosis_figures(tmp_path, windows, base, base, resid, resid, diagnosis, workers=1)
+    steps, cycles = kinds != "cycles", kinds != "transients"
+    assert {"residuals", "figure9_before", "figure9_after"} <= set(out)
+    assert ("figure8_before" in out and "figure8_after" in out) == steps
+    if cycles:
+        assert out["loops_before"] == [f"figures/diagnosis_loops/sine{k}_w0_before.png" for k in range(2)]
+        assert out["loops_after"] == [f"figures/diagnosis_loops/sine{k}_w0_after.png" for k in range(2)]
+    else:
+        assert "loops_before" not in out
+    for paths in out.values():
+        for p in paths:
+            assert (tmp_path / p).stat().st_size > 0
+
+
+def test_write_identify_figures_draws_the_loops_of_windows_of_cycles(tmp_path, results):
+    cyc = [_cycle_result(_cycle_entry(k), k) for k in range(2)]
+    summary = {"segments": [r.entry for r in results[:1] + cyc], "credible_mass": 0.9, "drift": {},
+               "settings": {"sampler": {"n_ensembles": N_ENSEMBLES}}}
+    out = write_identify_figures(tmp_path, None, [], None, results[:1] + cyc, summary, workers=1,
+                                 windows=[_window(r) for r in cyc])
+    assert out["loops"] == ["figures/loops/sine0_w0.png", "figures/loops/sine1_w0.png"]
+    assert out["figure3_static"] == [] and len(out["figure8_transients"]) == 2  # the transient's page, PNG + PDF
+    assert len(out["corner"]) == len(out["trace"]) == 3

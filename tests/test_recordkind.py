@@ -266,6 +266,18 @@ def test_less_than_one_cycle():
     assert classify_record(record(t, y)).kind != "sine"
 
 
+@pytest.mark.parametrize("rate, freq", [(1000, 1.0), (1000, 5.0), (100, 0.5)])
+def test_exactly_one_cycle_is_a_sine(rate, freq):
+    """n samples of one period (the last sample one interval before the cycle closes) are one cycle, not less."""
+    n = int(round(rate / freq))
+    t = np.arange(n) / rate
+    y = 5e-3 * np.sin(2 * np.pi * freq * t)
+    rec = record(t, y)
+    check_record_quality(rec)
+    kind = classify_record(rec)
+    assert kind.kind == "sine" and abs(kind.details["n_cycles"] - 1.0) < 1e-3, kind.details
+
+
 def test_less_than_one_cycle_through_csv(tmp_path):
     t, y = sine(rate=200, duration=1.4, amp=5e-3, freq=0.5)
     raises_one_line(via_csv(tmp_path, t, y, 100 + np.cos(np.pi * t), "short"), "less than one cycle",

@@ -142,7 +142,7 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
     ``cand_specs`` / ``cur_specs``: the free candidates of each model with their full-data values
     (``{effect: {param: value}}``); ``cache`` keeps the current model's held-out SSE across candidates.
     """
-    all_idx = np.arange(engine.n)
+    all_idx = np.arange(getattr(engine, "n", len(engine.problems)))
     d = []
     for g, test in enumerate(folds):
         train = np.setdiff1d(all_idx, test)

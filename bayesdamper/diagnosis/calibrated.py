@@ -23,10 +23,14 @@ __all__ = ["baseline_residuals", "pooled_noise", "search_problems", "stage_one_f
 #: Largest number of samples of a window in the candidate search: every q-th sample above it (the search compares
 #: sums of squares; the final model's posterior uses every sample). 2000 samples hold 10 s at 200 Hz.
 MAX_SEARCH_SAMPLES = 2000
-#: A window of whole cycles enters the search's grid stage (which only picks where each refinement starts) by its
-#: first stretch of this many cycles, but at least :data:`SCREEN_MIN_S`: the grid's cost is the solves', which
-#: grows with the duration.
-SCREEN_CYCLES, SCREEN_MIN_S = 2.0, 2.0
+#: A window of whole cycles enters the candidate search by its first stretch of this many cycles, but at least
+#: :data:`SEARCH_MIN_S`: an effect of the damper or the rig repeats every cycle, so a few cycles of every window
+#: judge it, and the search's cost is its solves', which grows with the duration (the final model's posterior uses
+#: every sample of every window).
+SEARCH_CYCLES, SEARCH_MIN_S = 3.0, 3.0
+#: ... and the search's grid stage (which only picks where each refinement starts) by its first cycle, but at least
+#: :data:`SCREEN_MIN_S`, with its flow coefficients held at the baseline's (only α_V and p_R re-fitted).
+SCREEN_CYCLES, SCREEN_MIN_S = 1.0, 1.0
 
 #: Effects whose force changes the plateaus (so stage 1 is fitted again with them): their parameter giving the
 #: constant force [N] along the motion, signed with the velocity (friction) or not (an offset).
@@ -140,8 +144,9 @@ def search_problems(windows, results, damper, flow0, max_steps_per_sample: int):
     """The candidate search's problems (:class:`~bayesdamper.inference.problem.EffectsProblem`) of the windows, their
     warm starts at the baseline posterior, and the screening stretches of windows of whole cycles with theirs.
 
-    A window that starts in motion starts from the force its baseline estimated there (data, not a parameter of
-    the search); more than :data:`MAX_SEARCH_SAMPLES` samples are thinned. Returns ``(problems, warm, screen,
+    A window of whole cycles enters by its first stretch (:data:`SEARCH_CYCLES`); a window that starts in motion
+    starts from the force its baseline estimated there (data, not a parameter of the search); more than
+    :data:`MAX_SEARCH_SAMPLES` samples are thinned. Returns ``(problems, warm, screen,
     screen_warm)``; the screening lists are None when no window is of whole cycles.
     """
     from bayesdamper.inference.problem import EffectsProblem
@@ -151,18 +156,21 @@ def search_problems(windows, results, damper, flow0, max_steps_per_sample: int):
     for w, res in zip(windows, results, strict=True):
         e = res.entry
         start = None if w.starts_settled or "dp0_Pa" not in e else float(e["dp0_Pa"]["median"]) * area
-        q = max(1, int(np.ceil(w.time.size / MAX_SEARCH_SAMPLES)))
-        t, f = _subsampled(w, q)
+        cyc = float(w.info.get("cycle_s", 0.0)) if w.kind == "cycles" else 0.0
+        t_search = w.t_step + max(SEARCH_CYCLES * cyc, SEARCH_MIN_S) if w.kind == "cycles" else None
+        n_search = int(np.count_nonzero(w.time <= t_search)) if t_search is not None else w.time.size
+        q = max(1, int(np.ceil(n_search / MAX_SEARCH_SAMPLES)))
+        t, f = _subsampled(w, q, t_search)
         prob = EffectsProblem.from_window(w, damper, flow0, time=t, force=f, start_force=start,
                                           max_steps=max_steps_per_sample * t.size)
         problems.append(prob)
         warm.append(warm_start(prob, e, area))
         if w.kind == "cycles":
-            span = max(SCREEN_CYCLES * float(w.info.get("cycle_s", 0.0)), SCREEN_MIN_S)
+            span = max(SCREEN_CYCLES * cyc, SCREEN_MIN_S)
             t, f = _subsampled(w, q, w.t_step + span)
-            if t.size < w.time[::q].size:
-                sp = EffectsProblem.from_window(w, damper, flow0, time=t, force=f, start_force=start,
-                                                max_steps=max_steps_per_sample * t.size)
+            if t.size < problems[-1].time.size or flow0 is None:
+                sp = EffectsProblem.from_window(w, damper, flow0 or _flow_of(e, None), time=t, force=f,
+                                                start_force=start, max_steps=max_steps_per_sample * t.size)
                 screen.append(sp)
                 screen_warm.append(warm_start(sp, e, area))
     if not screen:

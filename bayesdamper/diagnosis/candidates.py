@@ -180,7 +180,8 @@ def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict,
 
 def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fixed: dict,
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
-              idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False) -> CandidateFit:
+              idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
+              grid_only: bool = False) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -205,6 +206,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Intervals from the full Hessian of the profile objective (:func:`marginal_sds`: each parameter's
         uncertainty with the others free) instead of each axis' own curvature (the others held at the optimum,
         far narrower along a ridge). Costs about 2 n² evaluations; the diagnosis asks for it for the selection.
+    grid_only : bool
+        Score the grid's best point without refining it and without intervals (a screen: later rounds rank the
+        remaining candidates this way before re-fitting the best jointly with the selected effects).
     """
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
@@ -212,7 +216,8 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     hi = np.array([max(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])
     new = tuple(new if new is not None else (s.label for s in specs if s.label not in start))
     n_new = sum(len(ps) for spec, ps in groups if spec.label in new)
-    sel = np.arange(engine.n) if idx is None else np.asarray(idx)
+    n_windows = getattr(engine, "n", len(engine.problems))  # screening stretches follow the windows
+    sel = np.arange(n_windows) if idx is None else np.asarray(idx)
     n_total = float(n_eff[sel].sum())
     cur = float(np.sum(current_sse[sel]))
     cache: dict = {}
@@ -272,9 +277,12 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         vals = [grid_objective([g]) for g in grid]
         i = int(np.argmin(vals))
         a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-        res = minimize_scalar(lambda z: objective([z]), bounds=(a, b), method="bounded",
-                              options={"xatol": 0.01 * (hi[0] - lo[0])})
-        z_hat = np.array([res.x if res.fun < objective([grid[i]]) else grid[i]])
+        if grid_only:
+            z_hat = np.array([grid[i]])
+        else:
+            res = minimize_scalar(lambda z: objective([z]), bounds=(a, b), method="bounded",
+                                  options={"xatol": 0.01 * (hi[0] - lo[0])})
+            z_hat = np.array([res.x if res.fun < objective([grid[i]]) else grid[i]])
     else:
         best = z0
         if grid_dims:
@@ -297,7 +305,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             vals = [grid_objective(z) for z in cands]
             best = cands[int(np.argmin(vals))]
         z_hat = best
-        if max_iter != 0:  # 0: evaluate at the start (intervals of a known optimum)
+        if max_iter != 0 and not grid_only:  # 0: evaluate at the start (intervals of a known optimum)
             z_hat, done = _profile_lm(engine, best, lo, hi, sel, objective, detail, effects_at, flow_for, pack,
                                       max_iter or LM_ITER, n_total)
             if not done and grid_dims and objective(z_hat) < 0.0:
@@ -322,7 +330,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                             tuple(s.label for s in specs if s.label in new))
     # Laplace interval on the profile log-likelihood  l(z) = -D(z)/2  (transformed scale)
     sd = []
-    for j in range(len(flat)):
+    for j in range(0 if grid_only else len(flat)):
         h = 0.02 * (hi[j] - lo[j])
         zp, zm = z_hat.copy(), z_hat.copy()
         zp[j] = min(z_hat[j] + h, hi[j])
@@ -331,8 +339,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         sd.append(1 / math.sqrt(curv) if curv > 0 else float("inf"))
     if marginal and len(flat) > 1:
         sd = marginal_sds(objective, z_hat, lo, hi, np.array(sd))
+    sd += [float("inf")] * (len(flat) - len(sd))
     sse, xs, resid = engine.evaluate(pack(e_hat), flow_for(e_hat))
-    forces = [p.force for p in engine.problems[:engine.n]]
+    forces = [p.force for p in engine.problems[:n_windows]]
     jp = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)
     out_params = {}
     for j, ((spec, p), z, s_) in enumerate(zip(flat, z_hat, sd, strict=True)):

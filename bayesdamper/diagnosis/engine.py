@@ -39,8 +39,8 @@ def _inner_fit(args):
     """Least-squares (α_V, p_R) of one transient for a given effect set (worker task).
 
     Levenberg-Marquardt with the Jacobian carried from the transient's last re-fit
-    (:func:`bayesdamper.diagnosis.inner_fit.refit`: 8.7 solves on average where scipy's ``least_squares`` with
-    forward differences needed 13.1, ``benchmarks/inner_fit.py`` on rig-A) from the warm start; if it does not
+    (:func:`bayesdamper.diagnosis.inner_fit.refit`, fewer solves than scipy's ``least_squares`` with forward
+    differences at every iterate) from the warm start; if it does not
     converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point. Effect values whose solve
     fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. Returns (x̂,
     SSE, residual, Jacobian).

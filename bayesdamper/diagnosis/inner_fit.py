@@ -2,18 +2,17 @@
 
 Every evaluation of a candidate's profile objective S(ψ) re-fits each transient's two parameters by least squares on
 eq. (9) (:mod:`bayesdamper.diagnosis.candidates`). scipy's trust-region ``least_squares`` estimates the 2-column
-Jacobian afresh by forward differences at every iterate: 3 solves an iteration, 13 a re-fit on rig-A
-(``benchmarks/inner_fit.py``; 8.7 with the Jacobian carried). Here a Levenberg-Marquardt iteration carries the
-Jacobian instead: it starts from the one the last re-fit of the same transient ended with (the search moves ψ a
-little at a time), corrects it along every step taken (Broyden's rank-one update), and re-computes it by forward
-differences only when it is stale (a step failed, or the iterate moved more than :data:`JAC_REUSE` since the last
-difference) or to confirm convergence. Convergence is declared when a Jacobian differenced at the iterate predicts a
-Gauss-Newton step below :data:`XTOL` (log units) or a decrease below :data:`FTOL` of the sum of squares; when a step
-from a Jacobian at most :data:`JAC_REUSE` old gains less than :data:`FTOL`; when a step from a Jacobian differenced
-at its start gains what that Jacobian predicted to within :data:`FTOL`; or when such a step, predicted to gain less
-than 10 :data:`FTOL`, fails (the noise floor of the differences and the solver). On rig-A (6 transients x 21 points
-of a search) the sums of squares came within 5.3e-6 of scipy's at tolerance 1e-14, scipy's trust region at the
-search's former tolerances within 6.4e-6.
+Jacobian afresh by forward differences at every iterate: 3 solves an iteration. Here a Levenberg-Marquardt iteration
+carries the Jacobian instead: it starts from the one the last re-fit of the same transient ended with (the search
+moves ψ a little at a time), corrects it along every step taken (Broyden's rank-one update), and re-computes it by
+forward differences only when it is stale (a step failed, or the iterate moved more than :data:`JAC_REUSE` since the
+last difference) or to confirm convergence. Convergence is declared when a Jacobian differenced at the iterate
+predicts a Gauss-Newton step below :data:`XTOL` (log units) or a decrease below :data:`FTOL` of the sum of squares;
+when a step from a Jacobian at most :data:`JAC_REUSE` old gains less than :data:`FTOL`; when a step from a Jacobian
+differenced at its start gains what that Jacobian predicted to within :data:`FTOL`; or when such a step, predicted
+to gain less than 10 :data:`FTOL`, fails (the noise floor of the differences and the solver). On rig-A (6 transients
+x 21 points of a search) the sums of squares came within 5.3e-6 of scipy's at tolerance 1e-14, scipy's trust region
+at the search's former tolerances within 6.4e-6.
 
 The parameters live in a box; a parameter at a bound whose gradient points out of the box is held there (the
 reduced problem is solved for the others), so optima on the bounds are reached as in the projected methods.

@@ -8,6 +8,13 @@ import math
 
 import numpy as np
 
+from bayesdamper.diagnosis.calibrated import (
+    MAX_SEARCH_SAMPLES,
+    SCREEN_CYCLES,
+    SCREEN_MIN_S,
+    SEARCH_CYCLES,
+    SEARCH_MIN_S,
+)
 from bayesdamper.diagnosis.candidates import pooled_j
 from bayesdamper.diagnosis.loop import SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
@@ -90,6 +97,12 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
                       "structure_test": f"F test of {SMOOTH_S} s moving-average residual vs the noise "
                                         f"(plateaus, else each window's own estimate), alpha {STRUCTURE_ALPHA}"},
         "windows": [w.as_dict() for w in windows],
+        "search": {"cycle_windows": f"the first {SEARCH_CYCLES:g} cycles (at least {SEARCH_MIN_S:g} s) of each window "
+                                    "of whole cycles, at most " f"{MAX_SEARCH_SAMPLES} samples; the grid stage on "
+                                    f"the first {SCREEN_CYCLES:g} cycle(s) (at least {SCREEN_MIN_S:g} s) with the "
+                                    "flow coefficients held at the baseline's",
+                   "candidates_J": "the candidates' J are over the search's samples; J before and after are over "
+                                   "every sample"},
         "final_segments": final_entries,
         "settings": settings.as_dict(), "final_settings": final_settings.as_dict(), "seed": seed,
         "effects_considered": [getattr(n, "label", n) for n in names],

@@ -112,6 +112,29 @@ def window_noise(window, residual: np.ndarray):
                                                                   (0.0, 1.0 / float(info.get("cycle_s", 1.0)))))
 
 
+def input_error(jp, window, theta: np.ndarray, force: np.ndarray | None, noise) -> dict:
+    """What the reconstruction's error of the input does to the force: the rms difference [N] between the force
+    at ``theta`` driven by the input and by each of its bootstrap replicates, against the noise's sd. It is part
+    of the window's residual, so its scale σ_w (marginalised) holds it: where it is a fraction of the noise it
+    widens the intervals by less than that fraction squared; where it rivals the noise the intervals widen with
+    σ_w/σ and say so."""
+    from dataclasses import replace as _replace
+
+    if force is None:
+        return {}
+    diffs = []
+    for rep in window.drive_replicates:
+        local = rep.window(window.t_step, float(max(window.time[-1], window.t_step + 1e-9)))
+        f, ok = _replace(jp, drive=local, record_drive=rep if jp.effects is not None else None).simulate_window(theta)
+        if ok:
+            diffs.append(float(np.sqrt(np.mean((f - force) ** 2))))
+    if not diffs:
+        return {}
+    rms = float(np.sqrt(np.mean(np.square(diffs))))
+    return {"force_rms_N": rms, "relative_to_noise": rms / max(float(noise.sigma), 1e-300),
+            "replicates": len(diffs)}
+
+
 def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
                     prior, effects=None) -> WindowResult:
     from bayesdamper.inference import cut, joint
@@ -206,6 +229,8 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
     }
     if code == joint.AR1:
         entry["phi"] = summarise(phys[:, -1], settings.credible_mass)
+    if window.drive_replicates:
+        entry["input_error"] = input_error(jp, window, x_map, f_map if ok_map else None, prior.noise)
     phys_ch, lp, thin = thinned_chains(res, space)
     entry["wall_s"] = time.perf_counter() - t0
     if out_nc is not None:

@@ -114,9 +114,9 @@ class SamplingResult:
 
 
 #: Share of the independence move in ``"de+laplace"``; the rest is ``"de"`` in its own proportions (so that
-#: a poor approximation still leaves a working ridge-following move). Chosen on the benchmark record
-#: (benchmarks/whole_record.py, not a test's data): 0.5 / inflation 1.3 and 0.75 / 1.15 gave the same
-#: intervals; the latter halved τ.
+#: a poor approximation still leaves a working ridge-following move). Chosen on a benchmark record (a 1 kHz
+#: sine + multisine, not a test's data): 0.5 / inflation 1.3 and 0.75 / 1.15 gave the same intervals; the
+#: latter halved τ.
 INDEPENDENCE_SHARE = 0.75
 #: Degrees of freedom of the independence proposal's multivariate t (heavy tails: a posterior wider than
 #: its Laplace approximation in some direction is still proposed there, if rarely).

@@ -3,8 +3,8 @@
 ``[damper]`` holds the known damper constants (``piston_area_m2``, ``chamber_volume_1_m3``, ``chamber_volume_2_m3``,
 ``liquid_bulk_modulus_Pa``, optional ``name``); an optional ``[flow]`` table known flow coefficients of eq. (4)
 (``C_L12``, ``C_Q12``, ``C_L21``, ``C_Q21``); an optional ``[condition]`` table the conditions the data set was
-recorded under, one number each (``charge_pressure_Pa = 2e5``, ``temperature_C = 40``): data sets of one damper
-under different conditions are diagnosed together and what varies is reported against them.
+recorded under, one number each (``charge_pressure_Pa = 2e5``, ``temperature_C = 40``), read and validated
+(:attr:`bayesdamper.io.dataset.Dataset.condition`).
 """
 
 from __future__ import annotations

@@ -34,13 +34,15 @@ __all__ = ["RecordKind", "check_record_quality", "classify_record", "inspect_rec
 #: 1.25 cycles with rest: 0.9848). 0.995 lies between: up to 7 % distortion is a sine, a triangle never. The
 #: five lab-MR sines (quantised, start-up transient, drifting mean) give 0.9972-0.9987.
 SINE_R2 = 0.995
-#: Fewest cycles of a sine identified as a whole [-] (less cannot separate stiffness from damping).
-MIN_CYCLES = 1.0
+#: Fewest cycles of a sine identified as a whole [-] (less cannot separate stiffness from damping), less
+#: ``CYCLE_TOLERANCE``: the frequency of a one-cycle record is fitted to about 1e-3 of itself (a cycle of n
+#: samples at exactly one period must not be refused for it).
+MIN_CYCLES, CYCLE_TOLERANCE = 1.0, 0.01
 #: Below this many cycles a sine arc is not told from a ramp (no "less than one cycle" error) [-].
 MIN_PARTIAL_CYCLES = 0.25
 #: Zero padding of the FFT locating the frequency peak (peak error below 1/16 of a bin) [-].
 FFT_PADDING = 8
-#: Fewest samples for whole-record identification (as bayesdamper.io.wholerecord.MIN_WHOLE_SAMPLES).
+#: Fewest samples of a record that is not a triangular test.
 MIN_SAMPLES = 200
 #: Smoothing window of the velocity [s], as in bayesdamper.io.segmentation ...
 SMOOTHING_WINDOW = 0.2
@@ -160,7 +162,8 @@ def _fit_sine(t: np.ndarray, y: np.ndarray) -> tuple[float, float, float, float,
                               options={"xatol": 1e-6 * (b - a + 1e-12)}).x)
     coef, sse = solve(f)
     interior = lo_bound * 1.01 < f < hi_bound * 0.99
-    return float(math.hypot(coef[0], coef[1])), f, float(coef[2]), 1.0 - sse / var, f * span, interior
+    covered = span + float(np.median(np.diff(t)))  # n samples stand for n sample intervals of the motion
+    return float(math.hypot(coef[0], coef[1])), f, float(coef[2]), 1.0 - sse / var, f * covered, interior
 
 
 def _runs(state: np.ndarray) -> list[tuple[int, int, int]]:
@@ -237,7 +240,7 @@ def classify_record(record: TestRecord) -> RecordKind:
 
 def _classify(record: TestRecord, a: _Analysis) -> RecordKind:
     amp, freq, offset, r2, cycles, _ = a.sine
-    if r2 >= SINE_R2 and cycles >= MIN_CYCLES:
+    if r2 >= SINE_R2 and cycles >= MIN_CYCLES - CYCLE_TOLERANCE:
         details = {"amplitude_m": amp, "frequency_Hz": freq, "offset_m": offset, "n_cycles": cycles, "fit_r2": r2}
         text = f"sine, amplitude {amp * 1e3:.3g} mm, {freq:.3g} Hz, mean {offset * 1e3:.3g} mm, {cycles:.1f} cycles"
         return RecordKind(record.name, "sine", text, details)
@@ -316,7 +319,8 @@ def _check_analysed(record: TestRecord) -> _Analysis:
     """The checks that need the displacement analysed; returns the analysis."""
     t, a = record.time, _analyse(record)
     _, freq, _, r2, cycles, interior = a.sine
-    if r2 >= SINE_R2 and interior and MIN_PARTIAL_CYCLES <= cycles < MIN_CYCLES and not a.triangular:
+    too_short = MIN_PARTIAL_CYCLES <= cycles < MIN_CYCLES - CYCLE_TOLERANCE
+    if r2 >= SINE_R2 and interior and too_short and not a.triangular:
         span = float(t[a.stop - 1] - t[a.start])
         lasts = "lasts" if span >= 0.99 * record.duration else "moves for"
         raise DataError(f"{record.path}: record {lasts} {span:.2g} s, less than one cycle of its {freq:#.2g} Hz "

@@ -92,6 +92,10 @@ class Window:
         Read-only; empty when the window starts in motion.
     info : dict
         How the window was chosen (JSON-safe): rule, cycles, decimation, the input's reconstruction.
+    drive_replicates : tuple of PiecewisePolynomial
+        Bootstrap replicates of a reconstructed input (:func:`bayesdamper.io.reconstruct.bootstrap_inputs`): the
+        force they move at the fitted parameters is the reconstruction's error in the force. Empty for the
+        piecewise-linear fit of a triangular test.
     """
 
     id: str
@@ -109,6 +113,7 @@ class Window:
     pre_time: np.ndarray = field(default_factory=lambda: _readonly([]))
     pre_force: np.ndarray = field(default_factory=lambda: _readonly([]))
     info: dict = field(default_factory=dict)
+    drive_replicates: tuple = ()
 
     @property
     def duration(self) -> float:
@@ -155,7 +160,7 @@ def cycle_period(kind: str, details: dict, time: np.ndarray, velocity: np.ndarra
 
 
 def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, velocity_error: float,
-                  area: float, reconstruction: dict | None = None) -> list[Window]:
+                  area: float, reconstruction: dict | None = None, replicates: tuple = ()) -> list[Window]:
     """Cut a sine, sweep or random record into windows of whole cycles (module docstring, :data:`WINDOW_RULE`).
 
     Parameters
@@ -171,6 +176,8 @@ def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, 
         Piston area A_P [m^2] (Δp from the force).
     reconstruction : dict, optional
         How the input was reconstructed, stored in every window's ``info``.
+    replicates : tuple of PiecewisePolynomial
+        Bootstrap replicates of the reconstructed input (:attr:`Window.drive_replicates`).
 
     Raises
     ------
@@ -224,5 +231,6 @@ def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, 
             id=f"{record.name}_w{k}", test=record.name, index=k, kind="cycles", direction=0,
             velocity=float(np.quantile(vw, 0.99)) if vw.size else 0.0, t_step=t_step,
             time=_readonly(tw), displacement=_readonly(yw), force=_readonly(fw), dp0=dp0, drive=drive,
-            pre_time=_readonly(t[pre_idx]), pre_force=_readonly(f[pre_idx]), info=info))
+            pre_time=_readonly(t[pre_idx]), pre_force=_readonly(f[pre_idx]), info=info,
+            drive_replicates=tuple(replicates)))
     return windows

@@ -1,4 +1,4 @@
-"""Per-transient posterior diagnostics (corner and trace-rank plots) and the diagnosis residual figure.
+"""Per-window posterior diagnostics (corner and trace-rank plots) and the diagnosis residual figure.
 
 Every function takes data and returns a :class:`matplotlib.figure.Figure`; nothing is shown or written
 here (saving is :func:`bayesdamper.io.outputs.save_figure`). Styles: :mod:`bayesdamper.report.style`.
@@ -167,38 +167,55 @@ def trace_rank_plot(result, n_ensembles: int, *, walkers_per_ensemble: int = 3, 
     return fig
 
 
+#: Columns of the residual figure, in order: the transients by (kind, direction), then the windows of cycles.
+RESIDUAL_GROUPS = (("initial", 1), ("reversal", -1), ("reversal", 1), ("cycles", 0))
+
+
 def residual_figure(rows: Sequence[Mapping], *, title: str | None = None):
-    """Residual F_C − F_E [kN] against time since the step, before (top) and after (bottom) the loop.
+    """Residual F_C − F_E [N] against time since the window's start, before (top) and after (bottom) the
+    diagnosis's selected effects.
 
     Parameters
     ----------
     rows : sequence of mappings
-        One per transient: ``kind``, ``direction``, ``velocity_m_s``, ``t`` (time since step [s],
-        ndarray), ``before`` and ``after`` (residuals [N], ndarrays).
+        One per window: ``kind``, ``direction``, ``velocity_m_s``, ``t`` (time since the step or the window's
+        start [s], ndarray), ``before`` and ``after`` (residuals [N], ndarrays).
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        2 x n axes, one column per group of :data:`RESIDUAL_GROUPS` present in ``rows`` (in that order, then any
+        other (kind, direction)), lines coloured by speed.
     """
     import matplotlib as mpl
 
-    groups = [("initial", 1), ("reversal", -1), ("reversal", 1)]
-    fig = _figure((13.0, 6.5))
-    axes = fig.subplots(2, 3, sharex=True, sharey="row")
+    present = {(str(r["kind"]), int(r["direction"])) for r in rows}
+    groups = [g for g in RESIDUAL_GROUPS if g in present] + sorted(present - set(RESIDUAL_GROUPS))
+    if not groups:
+        raise ValueError("residual_figure needs at least one window")
+    fig = _figure((4.3 * len(groups) + 0.8, 6.5))
+    axes = fig.subplots(2, len(groups), sharey="row", squeeze=False)
     v = np.array([r["velocity_m_s"] for r in rows])
     norm = mpl.colors.Normalize(v.min() * 1e3, v.max() * 1e3)
     cmap = mpl.colormaps["viridis"]
     for j, (kind, d) in enumerate(groups):
         for r in rows:
-            if r["kind"] != kind or r["direction"] != d:
+            if (str(r["kind"]), int(r["direction"])) != (kind, d):
                 continue
             c = cmap(norm(r["velocity_m_s"] * 1e3))
-            axes[0, j].plot(r["t"], np.asarray(r["before"]) / 1e3, color=c, lw=0.6)
-            axes[1, j].plot(r["t"], np.asarray(r["after"]) / 1e3, color=c, lw=0.6)
-        axes[0, j].set_title(f"{kind}, direction {d:+d}")
-        axes[1, j].set_xlabel("time since step [s]")
-    axes[0, 0].set_ylabel("residual before [kN]")
-    axes[1, 0].set_ylabel("residual after [kN]")
+            axes[0, j].plot(r["t"], np.asarray(r["before"]), color=c, lw=0.6)
+            axes[1, j].plot(r["t"], np.asarray(r["after"]), color=c, lw=0.6)
+        axes[0, j].set_title("windows of cycles" if kind == "cycles" else f"{kind}, direction {d:+d}")
+        axes[1, j].set_xlabel("time since the window's start [s]" if kind == "cycles" else "time since step [s]")
+        axes[1, j].sharex(axes[0, j])
+    axes[0, 0].set_ylabel("residual before [N]")
+    axes[1, 0].set_ylabel("residual after [N]")
     for ax in axes.flat:
         ax.grid(alpha=0.3)
         ax.axhline(0.0, color="k", lw=0.5)
-    fig.colorbar(mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="piston speed [mm/s]")
+    fig.colorbar(mpl.cm.ScalarMappable(norm=norm, cmap=cmap), ax=axes, label="piston speed (peak for cycles) [mm/s]")
     if title:
         fig.suptitle(title)
     return fig

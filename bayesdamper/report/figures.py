@@ -8,8 +8,11 @@ Layout (paths relative to the output folder):
 * ``figures/figure9_drift.{png,pdf}``: p_R and 100/α_V against speed (paper Fig. 9);
 * ``figures/loops/<id>.png``: a window of whole cycles against its predictive (force against time, displacement
   and velocity);
-* ``figures/corner/<id>.png`` and ``figures/trace/<id>.png``: per-transient posterior diagnostics
-  (PNG only, to keep the run fast).
+* ``figures/corner/<id>.png`` and ``figures/trace/<id>.png``: per-window posterior diagnostics
+  (PNG only, to keep the run fast);
+* the diagnosis's (:func:`write_diagnosis_figures`): ``figures/residuals_before_after``, ``figures/figure8_before``
+  and ``_after`` (transients), ``figures/figure9_before`` and ``_after``, ``figures/diagnosis_loops/<id>_before.png``
+  and ``_after.png`` (windows of cycles).
 
 The plotting itself is in :mod:`bayesdamper.report.paper_figures` and
 :mod:`bayesdamper.report.diagnostic_plots`; this module only pages, names and saves.
@@ -162,11 +165,12 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
     return written
 
 
-def _pick(results, per_group: int = 1) -> list:
-    """Transients at the lowest, middle and highest speed of every (kind, direction) group."""
+def _pick(results) -> list:
+    """Windows at the lowest, middle and highest speed of every group: the transients per (kind, direction), the
+    windows of cycles as one group."""
     out = []
-    for kind, d in (("initial", 1), ("reversal", -1), ("reversal", 1)):
-        grp = sorted([r for r in results if r.entry["kind"] == kind and r.entry["direction"] == d],
+    for kind, d in (("initial", 1), ("reversal", -1), ("reversal", 1), ("cycles", 0)):
+        grp = sorted([r for r in results if r.entry["kind"] == kind and int(r.entry["direction"]) == d],
                      key=lambda r: r.entry["velocity_m_s"])
         if grp:
             idx = sorted({0, len(grp) // 2, len(grp) - 1})
@@ -174,27 +178,70 @@ def _pick(results, per_group: int = 1) -> list:
     return out
 
 
-def write_diagnosis_figures(out_dir: Path, transients, base, final, base_resid, final_resid,
+def write_diagnosis_figures(out_dir: Path, windows, base, final, base_resid, final_resid,
                             diagnosis: dict, *, workers: int | None = None) -> dict[str, list[str]]:
-    """Residuals before/after, Figure 8 and Figure 9 before/after, into ``out_dir/figures/``."""
-    fig_dir = Path(out_dir) / "figures"
+    """The diagnosis's figures before and after the selected effects, into ``out_dir/figures/``.
+
+    Parameters
+    ----------
+    out_dir : Path
+        The output folder.
+    windows : sequence of bayesdamper.io.windows.Window
+        The windows of the diagnosis (transients, windows of cycles or both).
+    base, final : sequence of bayesdamper.inference.stage2.WindowResult
+        The eq. (7) baseline's and the final model's results, in window order.
+    base_resid, final_resid : sequence of ndarray
+        Their residuals [N], in window order.
+    diagnosis : dict
+        The diagnosis (``selected``, ``drift_before``, ``drift_after``, ``settings``).
+    workers : int, optional
+        Processes drawing figures in parallel.
+
+    Returns
+    -------
+    dict of str to list of str
+        ``"residuals"`` and ``"figure9_before"``/``"figure9_after"`` always; ``"figure8_before"``/``"figure8_after"``
+        (the transients at the lowest, middle and highest speed of each kind and direction) when there are
+        transients; ``"loops_before"``/``"loops_after"`` (one PNG per window of cycles at the lowest, middle and
+        highest speed) when there are windows of cycles. Paths relative to ``out_dir``.
+    """
+    out_dir = Path(out_dir)
+    fig_dir = out_dir / FIGURES_DIR
     fig_dir.mkdir(parents=True, exist_ok=True)
-    rows = [{"kind": tr.kind, "direction": tr.direction, "velocity_m_s": tr.velocity,
-             "t": np.asarray(tr.time) - tr.t_step, "before": b, "after": a}
-            for tr, b, a in zip(transients, base_resid, final_resid, strict=True)]
+    windows = list(windows)
+    rows = [{"kind": w.kind, "direction": w.direction, "velocity_m_s": w.velocity,
+             "t": np.asarray(w.time) - w.t_step, "before": b, "after": a}
+            for w, b, a in zip(windows, base_resid, final_resid, strict=True)]
     sel = ", ".join(diagnosis["selected"]) or "none"
     mass = diagnosis.get("settings", {}).get("credible_mass", 0.9)
     jobs: list[Job] = [
         ("residuals", "residual_figure", (rows,), {"title": f"residuals: eq. (7) (top) and with {sel} (bottom)"},
-         fig_dir / "residuals_before_after", ("png", "pdf")),
-        ("figure8_before", "figure8_transients", (_pick(base),), {"title": "before: eq. (7)"},
-         fig_dir / "figure8_before", ("png", "pdf")),
-        ("figure8_after", "figure8_transients", (_pick(final),), {"title": f"after: eq. (7) + {sel}"},
-         fig_dir / "figure8_after", ("png", "pdf")),
+         fig_dir / "residuals_before_after", PAPER_FORMATS)]
+    steps_before = _pick([r for r in base if r.entry["kind"] != "cycles"])
+    if steps_before:
+        steps_after = _pick([r for r in final if r.entry["kind"] != "cycles"])
+        jobs += [("figure8_before", "figure8_transients", (steps_before,), {"title": "before: eq. (7)"},
+                  fig_dir / "figure8_before", PAPER_FORMATS),
+                 ("figure8_after", "figure8_transients", (steps_after,), {"title": f"after: eq. (7) + {sel}"},
+                  fig_dir / "figure8_after", PAPER_FORMATS)]
+    jobs += [
         ("figure9_before", "figure9_drift", ([r.entry for r in base], diagnosis["drift_before"], mass),
-         {"title": "before: eq. (7)"}, fig_dir / "figure9_before", ("png", "pdf")),
+         {"title": "before: eq. (7)"}, fig_dir / "figure9_before", PAPER_FORMATS),
         ("figure9_after", "figure9_drift", ([r.entry for r in final], diagnosis["drift_after"], mass),
-         {"title": f"after: eq. (7) + {sel}"}, fig_dir / "figure9_after", ("png", "pdf")),
-    ]
-    paths = _run(jobs, workers or os.cpu_count() or 1)
-    return {j[0]: [str(p.relative_to(out_dir)) for p in ps] for j, ps in zip(jobs, paths, strict=True)}
+         {"title": f"after: eq. (7) + {sel}"}, fig_dir / "figure9_after", PAPER_FORMATS)]
+    by_id = {w.id: w for w in windows}
+    cycles = {r.entry["id"] for r in _pick([r for r in base if r.entry["kind"] == "cycles"])}
+    if cycles:
+        (fig_dir / "diagnosis_loops").mkdir(exist_ok=True)
+    for key, results, label in (("loops_before", base, "eq. (7)"), ("loops_after", final, f"eq. (7) + {sel}")):
+        for r in results:
+            sid = r.entry["id"]
+            if sid in cycles:
+                w = by_id[sid]
+                jobs.append((key, "window_loops", (r, w.displacement, w.drive.velocity(w.time), mass),
+                             {"title": f"{sid}, {label}: J = {r.entry['J']:.3f}"},
+                             fig_dir / "diagnosis_loops" / f"{sid}_{key.split('_')[1]}", DIAGNOSTIC_FORMATS))
+    written: dict[str, list[str]] = {}
+    for job, paths in zip(jobs, _run(jobs, workers or os.cpu_count() or 1), strict=True):
+        written.setdefault(job[0], []).extend(Path(p).relative_to(out_dir).as_posix() for p in paths)
+    return written

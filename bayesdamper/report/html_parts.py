@@ -1,5 +1,7 @@
-"""Small pieces of the HTML report shared by its two-stage and whole-record sections: escaping, number and
-interval formatting, tables, figure blocks and the drift table. Imports nothing of the report itself.
+"""Pieces of the HTML report (:mod:`bayesdamper.report.html`): escaping, number and interval formatting, tables,
+figure blocks, the drift table, and the two sections that only read their own part of the results — the data set
+with its windows (``summary["data"]`` and ``summary["plan"]``) and the diagnosis (``diagnosis.json``). Imports
+nothing of the report itself.
 """
 
 from __future__ import annotations
@@ -10,6 +12,11 @@ from collections.abc import Iterable, Mapping
 from html import escape
 from pathlib import Path
 
+#: Symbols and units of the flow coefficients of eq. (4).
+_STATIC_UNITS = {"CL12": ("C<sub>L,12</sub>", "kg m<sup>-4</sup> s<sup>-1</sup>"),
+                 "CQ12": ("C<sub>Q,12</sub>", "kg m<sup>-7</sup>"),
+                 "CL21": ("C<sub>L,21</sub>", "kg m<sup>-4</sup> s<sup>-1</sup>"),
+                 "CQ21": ("C<sub>Q,21</sub>", "kg m<sup>-7</sup>")}
 #: Display scale and unit of the parameters in the tables.
 _PARAMS = {"alpha_V": ("α<sub>V</sub> [-]", 1.0), "p_R_Pa": ("p<sub>R</sub> [kPa]", 1e-3),
            "phi": ("φ [-]", 1.0)}
@@ -73,8 +80,12 @@ def _kv_table(items: Mapping) -> str:
     return _table(["", "value"], ([_e(k), _value(v)] for k, v in items.items()))
 
 
-def _figures(out_dir: Path, paths: Iterable[str] | None, caption: str, missing: str) -> str:
-    """``<figure>`` blocks for the PNGs among ``paths`` that exist in ``out_dir``, with links to the rest."""
+def _figures(out_dir: Path, paths: Iterable[str] | None, caption: str, missing: str, *,
+             per_file: bool = False) -> str:
+    """``<figure>`` blocks for the PNGs among ``paths`` that exist in ``out_dir``, with links to the rest.
+
+    With ``per_file`` every caption starts with the file's stem (a window's id), so that one caption text can
+    serve a figure per window."""
     paths = [str(p) for p in (paths or [])]
     present = [p for p in paths if (out_dir / p).is_file()]
     pngs = [p for p in present if p.lower().endswith((".png", ".svg", ".jpg", ".jpeg"))]
@@ -85,8 +96,9 @@ def _figures(out_dir: Path, paths: Iterable[str] | None, caption: str, missing: 
         stem = p.rsplit(".", 1)[0]
         others = [q for q in present if q != p and q.rsplit(".", 1)[0] == stem]
         links = "".join(f' <a href="{_e(q)}">{_e(q.rsplit(".", 1)[1].upper())}</a>' for q in others)
-        out.append(f'<figure><img src="{_e(p)}" alt="{_e(caption)}" loading="lazy">'
-                   f"<figcaption>{_e(caption)} ({_e(p)}{')' if not links else ';' + links + ')'}"
+        text = f"{stem.rsplit('/', 1)[-1]}: {caption}" if per_file else caption
+        out.append(f'<figure><img src="{_e(p)}" alt="{_e(text)}" loading="lazy">'
+                   f"<figcaption>{_e(text)} ({_e(p)}{')' if not links else ';' + links + ')'}"
                    "</figcaption></figure>")
     return "".join(out)
 
@@ -103,7 +115,7 @@ def _damper_table(d: Mapping) -> str:
 
 def _drift_table(drift: Mapping | None, mass: float) -> str:
     if not drift:
-        return '<p class="note">No drift fit (it needs at least three transients at two or more speeds).</p>'
+        return '<p class="note">No drift fit (it needs at least three windows at two or more speeds).</p>'
     rows = []
     for name, d in drift.items():
         label, scale = _PARAMS.get(name, (_e(name), 1.0))
@@ -116,4 +128,248 @@ def _drift_table(drift: Mapping | None, mass: float) -> str:
                          _yes(dd.get("credible_nonzero")), _num(dd.get("intrinsic_scatter"), ".3g", scale),
                          ""])
     return _table(["parameter", f"slope per mm/s, median [{mass:.0%}]", "credibly ≠ 0", "intrinsic scatter",
-                   "transients"], rows, left=1)
+                   "windows"], rows, left=1)
+
+
+# --------------------------------------------------------------------------------------------- data set and windows
+def _windows_of(summary: Mapping) -> list[dict]:
+    """Every window's description: the plan's (all windows of the data set), else the identified entries'."""
+    plan = summary.get("plan") or {}
+    if plan.get("windows"):
+        return list(plan["windows"])
+    return [dict(e.get("window") or {}, id=e.get("id"), test=e.get("test"), kind=e.get("kind"))
+            for e in summary.get("segments", [])]
+
+
+def _inputs_of(summary: Mapping, windows: list[dict]) -> dict:
+    """How each cycle-windowed record's input was reconstructed: the plan's, else its windows'."""
+    out = dict((summary.get("plan") or {}).get("inputs") or {})
+    for w in windows:
+        if w.get("input") and w.get("test") not in out:
+            out[w["test"]] = w["input"]
+    return out
+
+
+def _records_table(summary: Mapping, windows: list[dict]) -> str:
+    data = summary.get("data") or {}
+    kinds = {r["name"]: r for r in (summary.get("plan") or {}).get("records", [])}
+    count: dict[str, dict[str, int]] = {}
+    for w in windows:
+        c = count.setdefault(str(w.get("test")), {})
+        c[w.get("kind")] = c.get(w.get("kind"), 0) + 1
+
+    def windows_cell(name: str) -> str:
+        c = count.get(name, {})
+        steps = sum(v for k, v in c.items() if k != "cycles")
+        parts = ([f"{steps} transient(s)"] if steps else []) + (
+            [f"{c['cycles']} window(s) of cycles"] if c.get("cycles") else [])
+        return ", ".join(parts) or "–"
+
+    rows = []
+    for r in data.get("records", []):
+        k = kinds.get(r.get("name"), {})
+        rows.append([_e(r["file"]), _e(k.get("kind", "–")), _e(k.get("description", "")),
+                     windows_cell(r.get("name")), _num(r["n_samples"], "d"), _num(r["sample_rate_Hz"], ".1f"),
+                     _num(r["duration_s"], ".2f"), f"<code>{_e(str(r['sha256'])[:12])}</code>"])
+    return _table(["file", "kind", "what it is", "windows", "samples", "sample rate [Hz]", "duration [s]",
+                   "SHA-256 (first 12)"], rows, left=4)
+
+
+def _segmentation_table(summary: Mapping, ids: set) -> str:
+    rows = []
+    for st in (summary.get("data") or {}).get("steps", []):
+        sid = f"{st['test']}_s{st['index']}"  # the transient's window id
+        rows.append([f"<b>{_e(sid)}</b>" if sid in ids else _e(sid), _e(st["kind"]),
+                     f"{int(st['direction']):+d}",
+                     _num(st["velocity_m_s"], ".3f", 1e3), _num(st["t_step_s"], ".3f"),
+                     _num(st["force_N"], ".1f"),
+                     _num(st.get("plateau_force_N"), ".1f")
+                     + ("" if st.get("plateau_in_stage1", True) or st.get("plateau_force_N") is None
+                        else ' <span class="note">drifting: not in stage 1</span>')])
+    return ("<p><b>Transients.</b> Every velocity step of a triangular test (the start from rest and each reversal) "
+            f"begins a transient window of T<sub>max</sub> = {_num(summary.get('tmax_s'), 'g')} s, its state at the "
+            "start given by the mean force of the settled samples before the step; the settled end of each ramp is "
+            "a plateau, one point of the static characteristic, unless its force still drifts (linear trend "
+            "|t| &gt; 3 under the plateaus' noise): stage 1 leaves such a plateau out. Bold rows were identified in "
+            "this run.</p>"
+            + _table(["transient (step)", "kind", "dir", "v [mm/s]", "t<sub>step</sub> [s]", "F at step [N]",
+                      "plateau F [N]"], rows, left=2))
+
+
+def _cycle_windows_table(summary: Mapping, windows: list[dict], ids: set) -> str:
+    cyc = [w for w in windows if w.get("kind") == "cycles"]
+    rules = list(dict.fromkeys(str(w.get("rule", "")) for w in cyc if w.get("rule")))
+    rows = []
+    for w in cyc:
+        wid = str(w.get("id"))
+        rows.append([f"<b>{_e(wid)}</b>" if wid in ids else _e(wid), _e(w.get("record_kind", "")),
+                     f"{_num(w.get('t_start_s'), '.3f')} – {_num(w.get('t_end_s'), '.3f')}",
+                     _num(w.get("cycles"), ".2f"), _num(w.get("cycle_s"), ".4g"), _e(w.get("starts", "–")),
+                     _value(w.get("ends_at_rest")),
+                     _num(w.get("n_samples"), "d"), _num(w.get("rate_Hz"), ".4g"), _num(w.get("decimation"), "d")])
+    out = ["<p><b>Windows of cycles.</b> A sine, sweep or random record is cut into windows by its own time scale: "
+           + "; ".join(_e(r) for r in rules) + ". A window that starts at rest has the rest samples' mean force as "
+           "its state at the start (like a start from rest); one that starts in motion has no such data, and the "
+           "pressure difference at its start is sampled with its other parameters. Bold rows were identified in "
+           "this run.</p>",
+           _table(["window", "record", "span [s]", "cycles", "cycle [s]", "starts", "ends at rest", "samples",
+                   "rate [Hz]", "decimation"], rows, left=2)]
+    inputs = _inputs_of(summary, cyc)
+    if inputs:
+        out.append("<p>The model's input in a window of cycles is the measured displacement reconstructed as a "
+                   "smooth curve; its error is estimated from the record itself (the displacement's noise and "
+                   "converter step) and carried to the force by bootstrap replicates of the reconstruction (posterior "
+                   "section: the input's error relative to the noise).</p>")
+        out.append(_table(["record", "reconstruction", "displacement noise sd [µm]", "ADC step [µm]",
+                           "fit residual rms [µm]", "velocity error [mm/s]"], (
+            [_e(name), _e(d.get("method", "")), _num(d.get("noise_sd_m"), ".3g", 1e6),
+             _num(d.get("adc_step_m"), ".3g", 1e6), _num(d.get("residual_rms_m"), ".3g", 1e6),
+             _num(d.get("velocity_error_m_s"), ".3g", 1e3)
+             + (f' <span class="note">({int(d["n_bootstrap"])} bootstrap replicates)</span>'
+                if d.get("n_bootstrap") else "")] for name, d in inputs.items()), left=2))
+    return "".join(out)
+
+
+def _data_section(summary: Mapping) -> str:
+    """Section 1: the damper, the records with their kind and windows, the transients' segmentation and the
+    windows of cycles with their rule and the input's reconstruction."""
+    out = ['<h2 id="data">1. Data set and windows</h2>']
+    data = summary.get("data") or {}
+    if not data:
+        return out[0] + '<p class="note">This summary has no data-set table.</p>'
+    windows = _windows_of(summary)
+    ids = {e["id"] for e in summary.get("segments", [])}
+    out.append(_damper_table(data.get("damper", {})))
+    out.append("<p>Test records (one CSV file each) and the windows each is identified in:</p>")
+    out.append(_records_table(summary, windows))
+    if data.get("steps"):
+        out.append(_segmentation_table(summary, ids))
+    if any(w.get("kind") == "cycles" for w in windows):
+        out.append(_cycle_windows_table(summary, windows, ids))
+    return "".join(out)
+
+
+# --------------------------------------------------------------------------------------------- diagnosis
+#: Captions of the diagnosis's figures (other names: the name itself).
+_DIAGNOSIS_FIGURES = {
+    "residuals": "residuals of every window before (top) and after (bottom) the selected effects",
+    "figure8_before": "Figure 8 before the diagnosis (eq. (7)): transients at the lowest, middle and highest speed",
+    "figure8_after": "Figure 8 after the diagnosis (with the selected effects)",
+    "figure9_before": "Figure 9 before the diagnosis (eq. (7))",
+    "figure9_after": "Figure 9 after the diagnosis (with the selected effects)",
+    "loops_before": "window of cycles before the diagnosis (eq. (7))",
+    "loops_after": "window of cycles after the diagnosis (with the selected effects)"}
+
+
+def _lovo_cell(c: Mapping) -> str:
+    lv = c.get("lovo")
+    if not isinstance(lv, Mapping):
+        return "–"
+    folds = lv.get("per_fold") or []
+    aside = set(lv.get("outlying_folds") or [])
+    shown = ", ".join((f"<s>{_num(g, '+.0f')}</s>" if i in aside else _num(g, "+.0f")) for i, g in enumerate(folds))
+    return (f"{_num(lv.get('gain'), '+.1f')} (se {_num(lv.get('se'), '.1f')})"
+            + (f'<br><span class="note">folds {shown}</span>' if folds else ""))
+
+
+def _candidates_table(diagnosis: Mapping, mass: float) -> str:
+    rows = []
+    for c in diagnosis.get("candidates") or []:
+        params = c.get("params") or {}
+        ptxt = "<br>".join(f"{_e(k)} = {_interval(v, '.4g')}" for k, v in params.items()) \
+            if isinstance(params, Mapping) else _value(params)
+        aside = (c.get("lovo") or {}).get("outlying_folds") if isinstance(c.get("lovo"), Mapping) else None
+        rows.append([_e(c.get("effect", "?")), _num(c.get("score"), ".1f"), _e(c.get("criterion", "")),
+                     _num(c.get("J_pooled"), ".4f"), ptxt or "–", _lovo_cell(c),
+                     ", ".join(str(int(i) + 1) for i in aside) if aside else "–",
+                     _yes(c.get("effect") in (diagnosis.get("selected") or []), "selected", "–")])
+    if not rows:
+        return ""
+    return ("<p>Candidate effects, first round (lower score = better supported). The held-out gain is the "
+            "leave-velocities-out improvement of the fit over the current model, with its standard error and each "
+            "fold's gain; a fold whose gain is an outlier among the folds' (struck through, numbered from 1) is set "
+            "aside from the gain and its se:</p>"
+            + _table(["effect", "score", "criterion", "pooled J", f"parameters, median [{mass:.0%}]",
+                      "held-out gain (se)", "folds set aside", ""], rows, left=1))
+
+
+def _backward_check(diagnosis: Mapping) -> str:
+    rounds = diagnosis.get("rounds") or []
+    if not any("backward_check" in r for r in rounds):
+        return ""
+    dropped = [b for r in rounds for b in (r.get("backward_check") or [])]
+    text = ("<p>Backward check: each selected effect was tested against the model without it (the others re-fitted) "
+            "by the same criterion; ")
+    if not dropped:
+        return text + "every selected effect kept its place.</p>"
+    return (text + "the effects below were dropped, a later selection explaining what they did:</p>"
+            + _table(["effect dropped", "ΔBIC<sub>eff</sub> of adding it back", "pooled J without it",
+                      "J reduction with it"],
+                     ([_e(b.get("effect", "?")), _num(b.get("delta_BIC_eff"), "+.1f"), _num(b.get("J_without"), ".4f"),
+                       _num(b.get("J_reduction"), ".1%") if isinstance(b.get("J_reduction"), int | float) else "–"]
+                      for b in dropped)))
+
+
+def _window_j_table(diagnosis: Mapping) -> str:
+    base, final = diagnosis.get("baseline") or {}, diagnosis.get("final") or {}
+    jb, jf = base.get("J") or {}, final.get("J") or {}
+    if not isinstance(jb, Mapping) or not jb:
+        return ""
+    jf = jf if isinstance(jf, Mapping) else {}
+    info = {w.get("id"): w for w in diagnosis.get("windows") or []}
+    final_entries = {e.get("id"): e for e in diagnosis.get("final_segments") or []}
+    selected = bool(diagnosis.get("selected"))
+    rows = []
+    for k, v in jb.items():
+        w, e = info.get(k, {}), final_entries.get(k, {})
+        row = [_e(k), _e(w.get("kind", "–")),
+               f"{_num(w.get('t_start_s'), '.3f')} – {_num(w.get('t_end_s'), '.3f')}" if w else "–",
+               _num(v, ".4f"), _num(jf.get(k), ".4f")]
+        if selected:
+            row += [_interval(e.get("alpha_V"), "#.4g"), _interval(e.get("p_R_Pa"), "#.4g", 1e-3),
+                    _yes(e.get("converged")) if e else "–"]
+        rows.append(row)
+    header = ["window", "kind", "span [s]", "J baseline", "J final"] + (
+        ["final α<sub>V</sub>", "final p<sub>R</sub> [kPa]", "converged"] if selected else [])
+    return ("<p>Eq. (9) J per window before and after the selected effects"
+            + (", with the final model's posterior (its effects held at their values)" if selected else "")
+            + ":</p>" + _table(header, rows, left=2))
+
+
+def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, note: str | None) -> str:
+    """Section 6: what the diagnosis tested and selected, the noise it judged against (and where from), the
+    candidates with their held-out gains and outlying folds, the backward check, J per window before and after,
+    drift before and after and its figures."""
+    head = '<h2 id="diagnosis">6. Diagnosis of unmodelled effects</h2>'
+    if not diagnosis:
+        return head + ('<p class="note">No diagnosis is available for this run'
+                       + (f": {_e(note)}" if note else "") + ". The diagnosis fits candidate effects "
+                       "(friction, backlash, actuator lag, …) to the structured part of the residual and "
+                       "keeps those the data support; run <code>bayesdamper diagnose</code> when it is "
+                       "available.</p>")
+    out = [head]
+    if diagnosis.get("report_text"):
+        out.append(f"<pre>{_e(diagnosis['report_text'])}</pre>")
+    base, final = diagnosis.get("baseline") or {}, diagnosis.get("final") or {}
+    noise = diagnosis.get("noise") or {}
+    out.append(_table(["", "value"], [
+        ["noise sd [N]", _num(diagnosis.get("noise_N"), ".3g")],
+        ["noise from", _e(noise.get("source", "the plateaus"))],
+        ["windows diagnosed", _num(len(diagnosis.get("windows") or (base.get("J") or {})), "d")],
+        ["pooled J, eq. (7) baseline", _num(base.get("J_pooled"), ".4f")],
+        ["pooled J, final model", _num(final.get("J_pooled"), ".4f")],
+        ["selected effects", _e(", ".join(map(str, diagnosis.get("selected") or []))) or "none"]]))
+    out.append(_candidates_table(diagnosis, mass))
+    out.append(_backward_check(diagnosis))
+    out.append(_window_j_table(diagnosis))
+    if diagnosis.get("drift_before") or diagnosis.get("drift_after"):
+        out.append("<p>Drift with speed before the diagnosis:</p>"
+                   + _drift_table(diagnosis.get("drift_before"), mass))
+        out.append("<p>…and after it (with the selected effects):</p>"
+                   + _drift_table(diagnosis.get("drift_after"), mass))
+    for name, paths in (diagnosis.get("figures") or {}).items():
+        paths = paths if isinstance(paths, list) else [paths]
+        caption = _DIAGNOSIS_FIGURES.get(name, f"diagnosis: {str(name).replace('_', ' ')}")
+        out.append(_figures(out_dir, paths, caption, f"Diagnosis figure {name} not found.",
+                            per_file=str(name).startswith("loops")))
+    return "".join(out)

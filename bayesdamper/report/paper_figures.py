@@ -183,7 +183,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
         ax.text(0.5, 1.015, _drift_note(d, name, credible_mass), transform=ax.transAxes, va="bottom",
                 ha="center", fontsize=8, gid=f"drift-note-{name}")
     for ax, panel in ((ax_p, "(a) reference pressure"), (ax_a, "(b) gas content")):
-        ax.set_xlabel("piston speed |V_P| [mm/s]")
+        ax.set_xlabel("piston speed |V_P| [mm/s]" if not any(g[1] == "cycles" for g in groups) else
+                      "piston speed |V_P|, of cycles their peak [mm/s]")
         ax.set_yscale(yscale)
         if yscale == "log":  # plain numbers ("20", "0.5") rather than mathtext powers of ten
             ax.yaxis.set_major_formatter(_plain_log_formatter(labelOnlyBase=False))
@@ -197,7 +198,7 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
 
     handles = [Line2D([], [], color=s["color"], lw=0, marker="s", ms=7, label=f"direction {s['label']}")
                for d_, s in DIRECTION_STYLE.items() if any(g[0] == d_ for g in groups)]
-    step = {"initial": "step from rest", "reversal": "reversal"}
+    step = {"initial": "step from rest", "reversal": "reversal", "cycles": "window of cycles (peak speed)"}
     handles += [Line2D([], [], color="k", lw=0, marker=KIND_MARKER.get(k, "D"), ms=6, label=step.get(k, k))
                 for k in dict.fromkeys(g[1] for g in groups)]
     handles.append(Line2D([], [], color="k", marker="o", ms=4, lw=1,

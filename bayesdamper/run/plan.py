@@ -26,6 +26,9 @@ from bayesdamper.io.dataset import check_duration, load_dataset
 from bayesdamper.io.recordkind import inspect_record
 from bayesdamper.io.segmentation import segment_dataset
 
+#: Bootstrap replicates of a reconstructed input whose force, at every window's fitted parameters, measures what
+#: the input's error does to the force (four give its rms to about ±35 %, enough to tell it from the noise).
+INPUT_REPLICATES = 4
 #: Identification modes accepted by ``--mode``.
 MODES = ("auto", "two-stage", "whole-record")
 AUTO, TWO_STAGE, WHOLE = "auto", "two-stage", "whole-record"
@@ -95,7 +98,7 @@ def check_mode(mode: str) -> str:
 
 
 def _cycle_windows(ds, record, kind) -> tuple[list, dict]:
-    from bayesdamper.io.reconstruct import reconstruct_input
+    from bayesdamper.io.reconstruct import bootstrap_inputs, reconstruct_input
     from bayesdamper.io.windows import cycle_windows
     from bayesdamper.physics.excitation import PiecewisePolynomial
 
@@ -103,11 +106,14 @@ def _cycle_windows(ds, record, kind) -> tuple[list, dict]:
         rec = reconstruct_input(record.time, record.displacement, velocity=getattr(record, "velocity", None))
     except DataError as err:
         raise DataError(f"{record.path}: {err}") from None
-    restart = [True] + [False] * (rec.breaks.size - 2) + [True]
-    drive = PiecewisePolynomial(rec.breaks, rec.coefs, restart)
+    def drive_of(r):
+        return PiecewisePolynomial(r.breaks, r.coefs, [True] + [False] * (r.breaks.size - 2) + [True])
+
+    reps = bootstrap_inputs(record.time, record.displacement, velocity=getattr(record, "velocity", None),
+                            n_replicates=INPUT_REPLICATES)
     summary = rec.as_dict()
-    windows = cycle_windows(record, kind.kind, kind.details, drive, float(rec.velocity_error_m_s),
-                            ds.damper.piston_area, summary)
+    windows = cycle_windows(record, kind.kind, kind.details, drive_of(rec), float(rec.velocity_error_m_s),
+                            ds.damper.piston_area, summary, tuple(drive_of(r) for r in reps))
     return windows, summary
 
 

@@ -1,0 +1,121 @@
+"""Coverage of the 90 % intervals of windows of whole cycles on data bayesdamper did not make (slow; run in CI).
+
+The harness is ``tests/record_coverage.py``: data from the independent scipy-Radau generators, identification by
+``bayesdamper identify`` in a subprocess with its defaults, every window scored against its record's truth. Every
+parameter is estimated in every window, none given: the four flow coefficients, α_V and p_R (and the start's Δp, not
+scored).
+
+Two tests, on subsets of the harness's cases chosen by their measured run time (one seed, 2 cores, simulation and
+identify; in the comment of each name):
+
+* :func:`test_cycle_window_intervals_cover_the_truth`: small-damper and rig-A sines, a random record, starts from
+  rest, abrupt stops, a velocity channel, AR(1) force noise, ADC steps, and displacement noise at 100 Hz (~10 min);
+* :func:`test_intervals_cover_the_truth_with_displacement_noise_on_slow_sines`: rig-A's slow sines (0.6-1.5 mm/s)
+  with 30 µm displacement noise, where the input's reconstruction error is of the order of the force noise (~4 min).
+
+Left out for time: STOP-SMOOTH (476 s), FAST-AR (530 s), FAST-25MM (300 s), SWEEP (350 s), RANDOM-AR (482 s);
+FAST-1C and SLOW-1C fail before identification (a one-cycle record of n samples lasts (n - 1) / rate, less than a
+cycle). ``BAYESDAMPER_COVERAGE_SEEDS`` (comma-separated) runs more seeds, ``BAYESDAMPER_COVERAGE_CASES`` other cases
+in the first test. Reported (``-s``): the harness's table per case and over all windows, and every window.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+from record_coverage import CASES, PARAMS, format_table, run_cases, table
+
+#: The cases of the first test, with one seed's wall time on 2 cores and its windows (49 in all).
+CASE_NAMES = tuple(os.environ.get("BAYESDAMPER_COVERAGE_CASES", ",".join((
+    "FAST",         # small damper, 4 sines 0.5-5 Hz, 2-15 mm at 500 Hz, white noise: 48 s, 4 windows
+    "REST",         # starts from rest (hold, ramp-in): 18 s, 2 windows
+    "STOP-ABRUPT",  # stops with a velocity step, then rests: 21 s, 2 windows
+    "VELOCITY",     # a measured velocity channel fitted with the displacement: 16 s, 2 windows
+    "FAST-100HZ",   # 100 Hz with 30 µm displacement noise: 35 s, 4 windows
+    "RANDOM",       # band-limited random motion (rms displacement, rms velocity): 124 s, 3 windows
+    "SLOW-W",       # rig-A, 2 mm sines at 0.6-1.5 mm/s, 100 Hz: 32 s, 6 windows
+    "SLOW-REST",    # the same from rest: 35 s, 7 windows
+    "SLOW-AR",      # AR(1) force noise φ = 0.95, 10 µm displacement noise, 250 Hz: 26 s, 5 windows
+    "SLOW-STOP",    # abrupt stops and 6 s at rest: 29 s, 7 windows
+    "SLOW-5MM",     # 5 mm sines at 0.5-1.5 mm/s, AR(1) φ = 0.9, 2 µm ADC step: 238 s, 7 windows
+))).split(","))
+#: The case of the second test: SLOW-W's sines with 30 µm white displacement noise (231 s, 5 windows).
+NOISY_INPUT_CASE = "SLOW-DN"
+SEEDS = tuple(int(s) for s in os.environ.get("BAYESDAMPER_COVERAGE_SEEDS", "0").split(","))
+#: Pooled coverage band over all parameter-window pairs. 6 x 49 pairs; the parameters of one window are correlated
+#: (C_L and C_Q of a direction miss together), so count an effective half of them: a binomial sd of 2.5 % about
+#: 0.9. Below: 4 sd (0.80); above: 3 sd (0.98). Above the band means inflated intervals, below it overconfident ones.
+POOLED_BAND = (0.80, 0.98)
+#: Smallest share of converged windows: not every window determines every parameter well (a ridge of α_V and p_R
+#: can keep τ growing past the step budget); the intervals of every window, converged or not, enter the coverage.
+MIN_CONVERGED = 0.8
+#: Largest J of the fit over J of the truth (eq. (9) against the measured force over the window's raw samples) where
+#: the displacement is recorded without noise or ADC step: a fit of seven parameters cannot do worse than the truth
+#: except by missing the optimum (measured 0.995-1.000). With displacement noise the model is driven by a noisy
+#: input and the truth's J is out of reach (FAST-100HZ: up to 1.6); those windows are reported, not bounded.
+MAX_J_RATIO = 1.02
+
+
+def _min_count(n: int) -> int:
+    """Smallest per-parameter count of n windows accepted: the binomial(n, 0.9) 0.5 % quantile, so six honest
+    parameters fail together less than 3 % of the time."""
+    from scipy.stats import binom
+
+    return int(binom.ppf(0.005, n, 0.9))
+
+
+def _clean_input(case: str) -> bool:
+    cs = CASES[case]
+    return cs.displacement_sd == 0.0 and cs.displacement_step == 0.0
+
+
+def _report(rows: list[dict], tables: dict) -> str:
+    lines = [f"{len(rows)} windows of {len({r['case'] for r in rows})} case(s) x {len(SEEDS)} seed(s):"]
+    for name, tab in tables.items():
+        lines.append(f"== {name}\n{format_table(tab)}")
+    for r in rows:
+        missed = [p for p in PARAMS if p in r and not r[p]]
+        lines.append(f"  {r['case']:11s} {r['id']:28s} converged {r['converged']!s:5} J/J_truth {r['J_ratio']:.3f}"
+                     + (f"  missed: {', '.join(missed)}" if missed else ""))
+    return "\n".join(lines)
+
+
+def _check_coverage(rows: list[dict]) -> None:
+    """Every window of cycles, the converged share, per-parameter counts and the pooled band."""
+    assert rows and all(r["kind"] == "cycles" for r in rows)
+    tab = table(rows)
+    assert tab["converged"] >= MIN_CONVERGED, tab["converged"]
+    short = {}
+    for p in PARAMS:
+        n, hits = tab[p]["n"], tab[p]["hits"]
+        assert n == len(rows), p  # every parameter estimated in every window
+        if hits < _min_count(n):
+            short[p] = f"truth in {hits} of {n} 90 % intervals (need >= {_min_count(n)})"
+    assert not short, short
+    pooled = np.mean([r[p] for r in rows for p in PARAMS])
+    assert POOLED_BAND[0] <= pooled <= POOLED_BAND[1], f"pooled coverage {pooled:.3f} outside {POOLED_BAND}"
+
+
+@pytest.mark.slow
+def test_cycle_window_intervals_cover_the_truth(tmp_path, capsys):
+    res = run_cases(CASE_NAMES, SEEDS, tmp_path, workers=2, verbose=False)
+    rows = res["rows"]
+    with capsys.disabled():
+        print("\n" + _report(rows, res["tables"]))
+    ratios = {r["id"] + f" ({r['case']})": round(r["J_ratio"], 3) for r in rows if _clean_input(r["case"])}
+    assert ratios and max(ratios.values()) <= MAX_J_RATIO, {k: v for k, v in ratios.items() if v > MAX_J_RATIO}
+    _check_coverage(rows)
+
+
+@pytest.mark.slow
+def test_intervals_cover_the_truth_with_displacement_noise_on_slow_sines(tmp_path, capsys):
+    """30 µm of displacement noise at 100 Hz on 2 mm sines of 0.6-1.5 mm/s: the reconstruction smooths it, but its
+    velocity error is of the order of the slow speeds' force resolution. The intervals must still hold the truth
+    as often as :func:`test_cycle_window_intervals_cover_the_truth` requires (the input's error is part of what a
+    window's posterior must account for)."""
+    res = run_cases((NOISY_INPUT_CASE,), SEEDS, tmp_path, workers=2, verbose=False)
+    with capsys.disabled():
+        print("\n" + _report(res["rows"], res["tables"]))
+    _check_coverage(res["rows"])
