@@ -1,4 +1,4 @@
-"""Benchmark of a cold ``bayesdamper diagnose data/rig-A`` (issue 10's speed target: 5 min on 2 cores).
+"""Benchmark of a cold ``bayesdamper diagnose data/rig-A`` (target: 5 min on 2 cores).
 
 "Cold": a fresh output folder (the baseline is calibrated, not re-used from ``identify``) and an empty
 composed-kernel cache (``BAYESDAMPER_KERNEL_CACHE`` set to a new temporary folder, so every combination of

@@ -1,4 +1,4 @@
-"""Benchmark and fit check of ``bayesdamper identify data/rig-A`` (issue 9).
+"""Benchmark and fit check of ``bayesdamper identify data/rig-A``.
 
 Runs the command as a user would (figures included, all cores), prints its wall time, and per transient the
 eq. (9) J of the posterior-predictive median force against the paper's Nelder-Mead J, the posterior of α_V

@@ -91,9 +91,7 @@ def test_binary_junk(rig_copy):
     # 7.5 s: the start from rest, the reversal at 6 s and 1.5 s of the next ramp, shorter than the 3 s window
     1876,
     # 1.2 s: 0.97 s at rest and 0.2 s of the first ramp, no reversal
-    pytest.param(300, marks=pytest.mark.xfail(strict=True, reason=(
-        "read as 'other (broadband: 3.9-23 Hz)' and cut into one window of '1.00 cycles' (56 samples of a ramp): "
-        "a record without a single reversal passes as whole cycles"))),
+    300,
 ])
 def test_too_short(rig_copy, lines):
     f = rig_copy / "tri_1p00mm_s.csv"

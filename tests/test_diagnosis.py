@@ -96,7 +96,7 @@ def _loop_case(effect: str, tmp_path):
                          figures=False, quiet=True)
 
 
-#: Known failure (issue 10, stop 19): series compliance is supported in sample (ΔBIC_eff -4577, J -45 %) but the
+#: Known failure: series compliance is supported in sample (ΔBIC_eff -4577, J -45 %) but the
 #: stiffness fitted on two speeds predicts the third worse (leave-velocities-out folds -3, -90, +54): the
 #: out-of-sample rule says "none". Strict, so that a fix shows.
 _CASES = [pytest.param(e, marks=pytest.mark.xfail(strict=True, reason="out-of-sample rule rejects the "
@@ -113,7 +113,7 @@ def test_loop_finds_the_undeclared_effect(effect, tmp_path):
     from test_confusion import FAMILY
 
     # judged by family: a 2nd-order servo naming a 1st-order lag, or a poppet naming a valve lag, is the right
-    # physics in a richer form (the library holds both since issue 10)
+    # physics in a richer form (the library holds both)
     family = {lab: FAMILY[lab.split("@", 1)[0]] for lab in d["selected"]}
     first = family[d["selected"][0]] if d["selected"] else "none"
     row = {"injected": effect, "selected": d["selected"], "J_before": d["baseline"]["J_pooled"],

@@ -155,14 +155,14 @@ def test_map_recovers_every_parameter_on_noise_free_data():
 
 
 #: J of the cut's posterior-predictive median over Nelder-Mead's: the median curve of draws spread over Δp0 and
-#: the flow coefficients is not the optimum's curve; 1 % slack is a tenth of issue 9's rule on rig-A (10 %).
+#: the flow coefficients is not the optimum's curve; 1 % slack is a tenth of the rule on rig-A (10 %).
 CUT_J_SLACK = 1.01
 
 
 @pytest.mark.parametrize("coupling", ["cut", "joint"])
 def test_propagated_interval_covers_a_start_from_rest_the_conditional_one_misses(coupling):
-    """The cause of issue 9 on one start from rest (α_V 90, p_R 30 kPa, white 10 N): conditioned on the mean
-    step force the 90 % interval of α_V is a few tenths of a percent wide and misses the truth by many of its
+    """The conditional posterior's failure on one start from rest (α_V 90, p_R 30 kPa, white 10 N): conditioned on
+    the mean step force the 90 % interval of α_V is a few tenths of a percent wide and misses the truth by many of its
     widths; sampled jointly it holds it. Seed 0 of 1, not chosen: with the conditional posterior's z of 4-50
     on this data set (5 of 6 starts missed in the issue), any seed shows it."""
     seg = _record(alpha_v=90.0, p_r=3.0e4, sd=10.0, seed=0)

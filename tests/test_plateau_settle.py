@@ -3,7 +3,7 @@
 Data from tests/independent.py (scipy Radau, no bayesdamper import): rig-A's damper and protocol (rest, a 5 mm
 triangle for 1.25 cycles), the paper's flow coefficients. With soft gas (α_V 25, p_R 0.5 MPa) the approach to
 the steady force after a start from rest outlasts the first ramp's plateau at the higher speeds; with α_V 60
-it does not. Noise white 20 N at 100 Hz (issue 9's set W3).
+it does not. Noise white 20 N at 100 Hz (the coverage harness's set W3).
 """
 
 from __future__ import annotations

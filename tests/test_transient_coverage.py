@@ -1,4 +1,4 @@
-"""Honest two-stage intervals on data bayesdamper did not make (slow; issue 9).
+"""Honest two-stage intervals on data bayesdamper did not make (slow).
 
 Every data set comes from tests/independent.py (scipy Radau, eq. (7) or the two-state eq. (1) re-derived from
 the paper; no bayesdamper import), with the first step off the sample grid and different per record. The
@@ -13,7 +13,7 @@ Rules and their tolerances
   (90 % half-width / 1.645) in log units have sd within [0.7, 1.35] (n = 144: the sd of a sample sd is 0.06,
   so the band is > 5 of them from 1 on either side, room for the non-Gaussian shape of starts from rest),
   and the pooled coverage is within [0.83, 0.97] (binomial 99.5 % band for n = 144 is [0.84, 0.96]).
-* The conditional stage 2 (the paper's; ``--conditional``) on the set where issue 9 found it failing: at most
+* The conditional stage 2 (the paper's; ``--conditional``) on the set where it fails: at most
   2 of 6 starts from rest hold the true α_V (it held 0 of 6): the harness can fail.
 * Misspecified data (two-state model): the intervals are judged against the pseudo-true value: the eq. (9) optimum
   of the noise-free record (residual weighted by the noise colour) at the true step force and flow coefficients,
@@ -87,7 +87,7 @@ def test_two_stage_intervals_cover_independent_truth(tmp_path):
     print(f"z sd {z.std():.2f}, pooled coverage {cover:.3f}")
     assert 0.7 <= z.std() <= 1.35
     assert 0.83 <= cover <= 0.97
-    # the posterior-predictive median fits as well as the paper's point estimate (issue 9, rig-A's rule), where
+    # the posterior-predictive median fits as well as the paper's point estimate (rig-A's rule), where
     # the noise is white; under AR(1) noise the likelihood weights the residual by its colour (generalised
     # least squares), so its optimum is not eq. (9)'s and J may exceed Nelder-Mead's (offline, φ = 0.97 at
     # 200 Hz: up to 1.08), by design

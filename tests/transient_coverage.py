@@ -6,7 +6,7 @@ different in every record, six speeds 0.5-1.5 mm/s. Identification: the ``bayesd
 stage 1 included (flow coefficients estimated, never given). Counted: for every transient and parameter
 (α_V, p_R), whether the 90 % interval holds the truth, by kind of step, with the median relative width.
 
-Run as a script to measure the sets of issue 9 (and more)::
+Run as a script to measure the sets (and more)::
 
     python tests/transient_coverage.py SET [SET ...] [--out DIR] [--seeds 0,1]
 
@@ -59,7 +59,7 @@ class CoverageSet:
     model: str = "eq7"  # "eq7": exact eq. (7) data; "two-state": eq. (1) without accumulator (p_r = charge)
 
 
-#: The three sets of issue 9 (W1, W2, C1) and sets at other rates / truths.
+#: The three reference sets (W1, W2, C1) and sets at other rates / truths.
 SETS = {
     "W1": CoverageSet(40.0, 2.5e5, "white", 10.0),
     "W2": CoverageSet(90.0, 3.0e4, "white", 10.0),

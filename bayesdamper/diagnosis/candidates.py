@@ -337,9 +337,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         zm[j] = max(z_hat[j] - h, lo[j])
         curv = (objective(zp) - 2 * d_hat + objective(zm)) / (0.5 * (zp[j] - zm[j])) ** 2 / 2
         sd.append(1 / math.sqrt(curv) if curv > 0 else float("inf"))
-    if marginal and len(flat) > 1:
-        sd = marginal_sds(objective, z_hat, lo, hi, np.array(sd))
-    sd += [float("inf")] * (len(flat) - len(sd))
+    if marginal and len(flat) > 1 and not grid_only:
+        sd = list(marginal_sds(objective, z_hat, lo, hi, np.array(sd)))
+    sd += [float("inf")] * (len(flat) - len(sd))  # a screen by the grid alone has no intervals
     sse, xs, resid = engine.evaluate(pack(e_hat), flow_for(e_hat))
     forces = [p.force for p in engine.problems[:n_windows]]
     jp = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)

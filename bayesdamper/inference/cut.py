@@ -11,7 +11,7 @@ A transient's parameters come from three parts of a triangular test, each with i
 
 The joint posterior (``--coupling joint``) lets the window re-estimate θ1 = (Δp0, θ_c). Where eq. (7) is
 exact that only sharpens them a little; under model error it lets the misfit of the dynamics drag the static
-coefficients and the step force away from what their own data say (two-state data, issue 9: C_L12 moved by
+coefficients and the step force away from what their own data say (two-state data: C_L12 moved by
 up to 4.6 stage-1 sds in starts from rest, and Δp0 by 4.5 sds of the pre-step mean), and α_V, p_R move with
 them, away from the eq. (9) optimum. The *cut distribution* (Liu, Bayarri & Berger 2009, "Modularization in
 Bayesian analysis, with emphasis on analysis of computer models"; Plummer 2015, "Cuts in Bayesian graphical
@@ -29,7 +29,7 @@ test compares with re-optimising at drawn θ1 (tests/test_cut.py).
 
 What the intervals mean: on eq. (7) data they hold the truth at their nominal rate; under model error they
 aim at the eq. (9) optimum of the noise-free record (residual weighted by the noise colour) at the true step
-force and flow coefficients, the pseudo-true value of the issue 9 definition, and they widen by σ_w/σ_e where
+force and flow coefficients, the pseudo-true value, and they widen by σ_w/σ_e where
 the window's misfit exceeds the noise.
 """
 

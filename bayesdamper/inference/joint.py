@@ -3,7 +3,7 @@
 The plain stage 2 (:mod:`bayesdamper.inference.likelihood`) conditions each transient on three estimates
 and treats them as exact: the initial Δp (the mean force of the 0.15 s before the step), the four flow
 coefficients of stage 1, and - through the AR(1) model of the window's own residual - a noise colour that
-smooth model error can masquerade as. On independent data (issue 9) those three cost the intervals their
+smooth model error can masquerade as. On independent data those three cost the intervals their
 coverage. Here
 
 * Δp(t_step) is a sampled parameter, and the samples before the step enter the likelihood (the model force
@@ -27,7 +27,7 @@ coverage. Here
   colour.
 
 Under model error this joint posterior misbehaves in a way the cut does not (:mod:`bayesdamper.inference.cut`,
-the default since issue 9's second round; this posterior is ``--coupling joint``): the window's misfit drags Δp0
+the default; this posterior is ``--coupling joint``): the window's misfit drags Δp0
 and the flow coefficients away from what their own data say (two-state data: C_L12 by up to 4.6 stage-1 sds in
 starts from rest), and α_V and p_R move with them, away from the eq. (9) optimum (13/18 and 15/18 of the CI
 seed's intervals held the eq. (9) optimum's White counterpart). This module keeps the likelihood both use

@@ -368,9 +368,14 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         samplers.append(s)
         states.append(p0)
     n_pilot = n_trials = 0
+    # emcee refuses to start from an ensemble whose coordinates are badly conditioned (a performance heuristic, with
+    # no bearing on correctness): the ball of initial_positions follows the Laplace covariance, which on a thin ridge
+    # is nearly singular, and an ensemble sampling left on such a ridge is a valid state. The check is skipped; a
+    # walker cloud that cannot move shows in τ and the convergence rules.
     if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
         n_pilot = min(PILOT_STEPS, settings.max_steps)
-        states = [s.run_mcmc(st, n_pilot, progress=False) for s, st in zip(samplers, states, strict=True)]
+        states = [s.run_mcmc(st, n_pilot, progress=False, skip_initial_state_check=True)
+                  for s, st in zip(samplers, states, strict=True)]
         pilot_chain = np.stack([s.get_chain() for s in samplers])
         indep = pilot_proposal(pilot_chain)
         share = INDEPENDENCE_SHARE
@@ -402,7 +407,8 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     burn = 0
     while n_steps < settings.max_steps:
         n = min(settings.check_every, settings.max_steps - n_steps)
-        states = [s.run_mcmc(st, n, progress=False) for s, st in zip(samplers, states, strict=True)]
+        states = [s.run_mcmc(st, n, progress=False, skip_initial_state_check=True)
+                  for s, st in zip(samplers, states, strict=True)]
         n_steps += n
         chains = np.stack([s.get_chain() for s in samplers])  # (E, T, W, D)
         burn = min(n_steps // 3, int(math.ceil(10 * np.max(tau)))) if np.all(np.isfinite(tau)) else n_steps // 3

@@ -40,6 +40,10 @@ MAX_WINDOW_SAMPLES = 12_000
 #: percentile) and below :data:`REST_NOISE_SIGMAS` times the reconstruction's velocity error.
 REST_FRACTION = 0.01
 REST_NOISE_SIGMAS = 3.0
+#: A reversal of the motion is a turning point the displacement then leaves by more than this fraction of its range
+#: (1st to 99th percentile): a rest's noise and a corner's ringing cannot make one, and a random record's wiggles
+#: smaller than a tenth of its range are not cycles.
+REVERSAL_FRACTION = 0.1
 #: Fewest rest samples at a record's start that make its first window a start from rest (their mean force is
 #: the step force; the triangular tests' step force is the mean of 0.15 s, 30 samples at 200 Hz).
 MIN_REST_SAMPLES = 20
@@ -145,18 +149,39 @@ def _decimate(x: np.ndarray, q: int) -> np.ndarray:
     return decimate(np.asarray(x, dtype=float), q, ftype="fir", zero_phase=True)
 
 
-def cycle_period(kind: str, details: dict, time: np.ndarray, velocity: np.ndarray, moving: np.ndarray) -> float:
-    """The record's own time scale [s]: a sine's period, else twice the median interval between the velocity's
-    zero crossings in motion (a random record's mean half-cycle), else the moving duration."""
+def cycle_period(kind: str, details: dict, time: np.ndarray, displacement: np.ndarray, moving: np.ndarray) -> float:
+    """The record's own time scale [s]: a sine's period, else twice the median interval between the motion's
+    reversals (a triangular or random record's mean half-cycle), else the moving duration.
+
+    A reversal is a turning point of the displacement that it leaves by more than :data:`REVERSAL_FRACTION` of
+    its range (peak picking with hysteresis): the noise of a rest and the ringing of a reconstructed velocity
+    at a corner or a stop move the displacement by far less and make none."""
     if kind == "sine" and details.get("frequency_Hz", 0) > 0:
         return 1.0 / float(details["frequency_Hz"])
     idx = np.flatnonzero(moving)
     span = float(time[idx[-1]] - time[idx[0]]) if idx.size > 1 else float(time[-1] - time[0])
-    v = velocity[idx[0]:idx[-1] + 1] if idx.size else velocity
-    crossings = np.flatnonzero(np.sign(v[1:]) * np.sign(v[:-1]) < 0)
-    if crossings.size >= 3:
-        return float(2.0 * np.median(np.diff(time[idx[0] + crossings])))
+    turns = _reversals(displacement, REVERSAL_FRACTION * float(np.ptp(np.quantile(displacement, (0.01, 0.99)))))
+    if len(turns) >= 2:
+        return float(2.0 * np.median(np.diff(time[turns])))
     return max(span, float(time[1] - time[0]))
+
+
+def _reversals(y: np.ndarray, h: float) -> list[int]:
+    """Indices of the turning points of ``y`` that it then leaves by more than ``h`` (each the extreme sample);
+    the start is none."""
+    turns, i_lo, i_hi, direction, i_ext = [], 0, 0, 0, 0
+    for i in range(1, y.size):
+        if direction == 0:  # until the first move by more than h
+            i_lo = i if y[i] < y[i_lo] else i_lo
+            i_hi = i if y[i] > y[i_hi] else i_hi
+            if y[i] - y[i_lo] > h or y[i_hi] - y[i] > h:
+                direction, i_ext = (1 if y[i] - y[i_lo] > h else -1), i
+        elif direction * (y[i] - y[i_ext]) > 0:
+            i_ext = i
+        elif direction * (y[i_ext] - y[i]) > h:
+            turns.append(i_ext)
+            direction, i_ext = -direction, i
+    return turns
 
 
 def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, velocity_error: float,
@@ -189,7 +214,12 @@ def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, 
     v_peak = float(np.quantile(np.abs(v), 0.99))
     rest = np.abs(v) <= max(REST_FRACTION * v_peak, REST_NOISE_SIGMAS * velocity_error)
     moving = ~rest
-    period = cycle_period(kind, details, t, v, moving)
+    y_drive = drive.displacement(t)
+    hysteresis = REVERSAL_FRACTION * float(np.ptp(np.quantile(y_drive, (0.01, 0.99))))
+    if kind != "sine" and not _reversals(y_drive, hysteresis):
+        raise DataError(f"{record.path}: the motion never reverses ({float(t[-1] - t[0]):.3g} s): not a triangular "
+                        "test, and no cycle to identify")
+    period = cycle_period(kind, details, t, y_drive, moving)
     i0 = 0
     pre = np.zeros(0, dtype=int)
     if rest[:MIN_REST_SAMPLES].all():  # starts at rest: the rest samples give the step force

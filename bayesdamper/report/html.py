@@ -14,7 +14,6 @@ folder and only when the file is there. Written atomically.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
@@ -30,8 +29,8 @@ from bayesdamper.report.html_parts import (
     _e,
     _figures,
     _interval,
-    _kv_table,
     _num,
+    _provenance_section,
     _table,
     _yes,
 )
@@ -73,6 +72,61 @@ def _counts(summary: Mapping) -> dict:
             "step_records": len({e.get("test") for e in segs if e.get("kind") != "cycles"})}
 
 
+def _samples_flow(e: Mapping) -> bool:
+    """Whether a window samples the four flow coefficients with its other parameters (a window of cycles, or any
+    window under a flat prior) instead of taking them from stage 1."""
+    return bool(e.get("flow")) and (e.get("kind") == "cycles" or str(e.get("flow_prior", "")).startswith("flat"))
+
+
+def _flow_overview(summary: Mapping, segs: list) -> str:
+    """Where the flow coefficients of eq. (4) came from: stage 1 (with any held at 0), the windows that sample them
+    with α_V and p_R and under which prior, as their entries say."""
+    sampled = [e for e in segs if _samples_flow(e)]
+    flat = sum(str(e.get("flow_prior", "")).startswith("flat") for e in sampled)
+    prior = ("a flat prior" if flat == len(sampled) else "stage 1's posterior as prior" if not flat else
+             f"a flat prior in {flat} and stage 1's posterior as prior in {len(sampled) - flat}")
+    what = "window(s) of cycles" if all(e.get("kind") == "cycles" for e in sampled) else "window(s)"
+    if not summary.get("static"):
+        return "no plateaus, so no stage 1: estimated " + (
+            f"in each of the {len(sampled)} {what} with α<sub>V</sub>, p<sub>R</sub> and the pressure difference at "
+            f"its start, under {prior} (their intervals are in the posterior table)" if sampled else "in every window")
+    held = ", ".join(_STATIC_UNITS.get(k.replace("_", ""), (_e(k),))[0]
+                     for k in summary.get("static_constrained") or [])
+    return ("stage 1 from the plateaus of the triangular tests (Figure 3)"
+            + (f"; held at 0 because the plateaus made them negative: {held}" if held else "")
+            + (f"; sampled with α<sub>V</sub> and p<sub>R</sub> in each of {len(sampled)} {what}, under {prior}"
+               if sampled else ""))
+
+
+def _noise_overview(summary: Mapping, segs: list) -> str:
+    """Where the windows' noise came from, as the summary and the entries say: the plateaus' estimate for the
+    windows that use it, and for the windows with a noise of their own (windows of cycles without plateaus) each
+    one's method, or the range of φ and σ where there are many."""
+    nz = summary.get("noise") or {}
+    own = [e for e in segs if (e.get("noise") or {}).get("source")
+           and not str(e["noise"]["source"]).startswith("plateaus")]
+    parts = []
+    if nz and len(own) < len(segs):
+        parts.append(f"from the plateaus: AR(1) φ = {_num(nz.get('phi'), '.3f')}, "
+                     f"σ = {_num(nz.get('sigma_N'), '.3g')} N"
+                     + (f" ({len(segs) - len(own)} window(s))" if own else ""))
+    if own:
+        what = "window(s) of cycles" if all(e.get("kind") == "cycles" for e in own) else "window(s)"
+        head = f"of the {len(own)} {what} estimated in each from its own least-squares residual"
+        phi = [e["noise"]["phi"] for e in own if isinstance(e["noise"].get("phi"), int | float)]
+        sigma = [e["noise"]["sigma_N"] for e in own if isinstance(e["noise"].get("sigma_N"), int | float)]
+        if len(own) <= 3:
+            parts.append(head + ": " + "; ".join(
+                f"{_e(e['id'])}: AR(1) φ = {_num(e['noise'].get('phi'), '.3f')}, "
+                f"σ = {_num(e['noise'].get('sigma_N'), '.3g')} N — {_e(e['noise']['source'])}" for e in own))
+        else:
+            ranges = ([f"AR(1) φ from {_num(min(phi), '.3f')} to {_num(max(phi), '.3f')}"] if phi else []) + (
+                [f"σ from {_num(min(sigma), '.3g')} to {_num(max(sigma), '.3g')} N"] if sigma else [])
+            parts.append(head + " (" + (", ".join(ranges) + "; " if ranges else "")
+                         + "each window's method in the noise table)")
+    return "; noise ".join(parts) or "not recorded in the summary"
+
+
 def _overview(summary: Mapping, diagnosis: Mapping | None) -> str:
     c = _counts(summary)
     segs = summary.get("segments", [])
@@ -85,21 +139,11 @@ def _overview(summary: Mapping, diagnosis: Mapping | None) -> str:
         mode = summary.get("mode")
         lines.append(f"<li>How the records were windowed: {_e(summary['mode_reason'])}"
                      + (f" (<code>--mode {_e(mode)}</code>)" if mode and mode != "auto" else "") + ".</li>")
-    held = ", ".join(_STATIC_UNITS.get(k.replace("_", ""), (_e(k),))[0]
-                     for k in summary.get("static_constrained") or [])
-    lines.append("<li>Flow coefficients of eq. (4): " + (
-        "stage 1 from the plateaus of the triangular tests (Figure 3)"
-        + (f"; held at 0 because the plateaus made them negative: {held}" if held else "")
-        if summary.get("static") else "no plateaus, so no stage 1: estimated in every window") + ".</li>")
+    lines.append(f"<li>Flow coefficients of eq. (4): {_flow_overview(summary, segs)}.</li>")
     su = summary.get("static_uncertainty") or {}
-    nz = summary.get("noise") or {}
     if su.get("propagated"):
         lines.append("<li>Every posterior includes the uncertainty of the flow coefficients and of the pressure "
-                     "difference at the window's start; noise "
-                     + (f"from the plateaus: AR(1) φ = {_num(nz.get('phi'), '.3f')}, "
-                        f"σ = {_num(nz.get('sigma_N'), '.3g')} N" if nz else
-                        "estimated in each window from its least-squares residual away from the excitation's band "
-                        "and harmonics") + ".</li>")
+                     f"difference at the window's start; noise {_noise_overview(summary, segs)}.</li>")
     elif su:
         ratio = su.get("max_ratio") or {}
         lines.append("<li>Uncertainty of the stage-1 flow coefficients: "
@@ -212,7 +256,8 @@ def _coupling_text(segs: list) -> str:
                    "coefficients under "
                    + ("stage 1's posterior as prior" if stage1 == len(joint) else "a flat prior" if not stage1 else
                       f"stage 1's posterior as prior in {stage1} and a flat prior in {len(joint) - stage1}")
-                   + "; their intervals are in the flow-coefficient table below.")
+                   + "; their intervals are in the posterior table and, with their prior, in the flow-coefficient "
+                   "table below.")
     return " ".join(out)
 
 
@@ -237,8 +282,7 @@ def _noise_table(segs: list) -> str:
 def _flow_table(segs: list, mass: float) -> str:
     rows = [[_e(e["id"]), _e(e.get("flow_prior", "–"))] + [_interval((e.get("flow") or {}).get(k), ".4g")
                                                           for k in _STATIC_UNITS]
-            for e in segs if e.get("flow") and (e.get("kind") == "cycles"
-                                                or str(e.get("flow_prior", "")).startswith("flat"))]
+            for e in segs if _samples_flow(e)]
     if not rows:
         return ""
     return ("<h3>Flow coefficients sampled in the windows of cycles</h3>"
@@ -253,9 +297,11 @@ def _posterior_section(summary: Mapping) -> str:
     mass = float(summary.get("credible_mass", 0.9))
     segs = summary.get("segments", [])
     has_dp0 = any(isinstance(e.get("dp0_Pa"), Mapping) for e in segs)
+    has_flow = any(_samples_flow(e) for e in segs)
     header = ["window", "kind", "dir", "v [mm/s]", f"α<sub>V</sub> median [{mass:.0%}]",
               f"p<sub>R</sub> [kPa] median [{mass:.0%}]"] + (
-              [f"Δp at the start [kPa] median [{mass:.0%}]"] if has_dp0 else []) + [
+              [f"Δp at the start [kPa] median [{mass:.0%}]"] if has_dp0 else []) + (
+              [f"{v[0]} median [{mass:.0%}]" for v in _STATIC_UNITS.values()] if has_flow else []) + [
               "J eq. (9)", "point J", "point α<sub>V</sub>", "point p<sub>R</sub> [kPa]", "R-hat max", "ESS min",
               "τ max", "converged", "shape"]
     rows, classes = [], []
@@ -269,6 +315,9 @@ def _posterior_section(summary: Mapping) -> str:
                _interval(e.get("p_R_Pa"), "#.4g", 1e-3)]
         if has_dp0:
             row.append(_interval(e.get("dp0_Pa"), ".4g", 1e-3))
+        if has_flow:
+            row += [_interval((e.get("flow") or {}).get(k), "#.4g") if _samples_flow(e) else "–"
+                    for k in _STATIC_UNITS]
         row += [_num(e.get("J"), ".4f"), _num(ls.get("J"), ".4f"), _num(ls.get("alpha_V"), ".4g"),
                 _num(ls.get("p_R_Pa"), ".4g", 1e-3), _num(e.get("rhat_max"), ".3f"),
                 _num(e.get("ess_bulk_min"), ".0f"), _num(tau, ".1f"),
@@ -296,7 +345,11 @@ def _posterior_section(summary: Mapping) -> str:
     return ('<h2 id="posterior">3. Posterior of every window</h2>'
             "<p>In every window, α<sub>V</sub> and p<sub>R</sub> of eq. (6)–(7) are sampled with " + how + " "
             + _coupling_text(segs) + f" The tables give the posterior median and the equal-tailed {mass:.0%} "
-            "credible interval.</p>"
+            "credible interval"
+            + ("; the flow coefficients' columns (C<sub>L</sub> in kg m<sup>-4</sup> s<sup>-1</sup>, C<sub>Q</sub> in "
+               "kg m<sup>-7</sup>) are filled for the windows that sample them" + (
+                   ", the others take stage 1's (section 2)" if summary.get("static") else "") if has_flow else "")
+            + ".</p>"
             "<p><b>What the intervals mean.</b> " + _NOISE_MODELS.get(noise_model, "") + " In every window the "
             "noise's scale σ<sub>w</sub> is estimated, so where the model misses the data (σ<sub>w</sub>/σ well "
             f"above 1, σ the noise's sd; bold above {MODEL_ERROR_RATIO:g}) the intervals widen by that factor: they "
@@ -340,52 +393,6 @@ def _figures_section(summary: Mapping, out_dir: Path) -> str:
                + _figures(out_dir, figs.get("figure9_drift"), "Figure 9: p_R and 100/α_V against piston speed",
                           "Figure 9 was not drawn (the run used --no-figures)."))
     return "".join(out)
-
-
-def _provenance_section(summary: Mapping, out_dir: Path) -> str:
-    prov = summary.get("provenance") or {}
-    out = ['<h2 id="provenance">7. Provenance</h2>',
-           "<p>Everything needed to reproduce these numbers: the same input files (by SHA-256), the same "
-           "settings and seed, and the same package versions. Each window's posterior, with the same "
-           f'provenance, is in <code>{_e("posteriors/<id>.nc")}</code> (NetCDF, ArviZ layout).</p>']
-    run = {"data set": summary.get("dataset"), "identification mode": summary.get("mode"),
-           "data-set folder": prov.get("dataset_path"),
-           "data-set SHA-256": prov.get("dataset_sha256"), "run seed": summary.get("seed"),
-           "T_max [s]": summary.get("tmax_s"), "credible mass": summary.get("credible_mass"),
-           "settings fingerprint": prov.get("settings_fingerprint"),
-           "wall time of the run [s]": summary.get("wall_time_s")}
-    try:
-        log = json.loads((out_dir / "run.json").read_text())
-    except (OSError, ValueError):
-        log = {}
-    if isinstance(log, dict) and log:
-        run.update({"run started (UTC)": log.get("started_utc"),
-                    "run finished (UTC)": log.get("finished_utc"),
-                    "windows sampled in this run": len(log.get("computed") or []),
-                    "windows resumed from earlier runs": len(log.get("resumed") or []),
-                    "workers": log.get("scheduler") or log.get("workers")})
-    out.append(_kv_table({k: v for k, v in run.items() if v is not None}))
-    out.append("<p>Stage-2 settings:</p>" + _kv_table(_flat(summary.get("settings") or {})))
-    out.append("<p>Input files:</p>" + _table(["file", "SHA-256"], (
-        [_e(k), f"<code>{_e(v)}</code>"] for k, v in (prov.get("input_sha256") or {}).items())))
-    out.append("<p>Versions:</p>" + _table(["package", "version"], (
-        [_e(k), _e(v)] for k, v in (prov.get("versions") or {}).items())))
-    links = [p for p in ("summary.json", "run.json", "diagnosis.json") if (out_dir / p).is_file()]
-    if links:
-        out.append("<p>Machine-readable results: "
-                   + ", ".join(f'<a href="{_e(p)}">{_e(p)}</a>' for p in links) + ".</p>")
-    return "".join(out)
-
-
-def _flat(d: Mapping, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, Mapping):
-            out.update(_flat(v, key + "."))
-        else:
-            out[key] = v
-    return out
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """Pieces of the HTML report (:mod:`bayesdamper.report.html`): escaping, number and interval formatting, tables,
-figure blocks, the drift table, and the two sections that only read their own part of the results — the data set
-with its windows (``summary["data"]`` and ``summary["plan"]``) and the diagnosis (``diagnosis.json``). Imports
-nothing of the report itself.
+figure blocks, the drift table, and the three sections that only read their own part of the results — the data
+set with its windows (``summary["data"]`` and ``summary["plan"]``), the diagnosis (``diagnosis.json``) and the
+provenance (``summary["provenance"]``, ``summary["settings"]`` and ``run.json``). Imports nothing of the report
+itself.
 """
 
 from __future__ import annotations
@@ -373,3 +374,53 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
         out.append(_figures(out_dir, paths, caption, f"Diagnosis figure {name} not found.",
                             per_file=str(name).startswith("loops")))
     return "".join(out)
+
+
+# --------------------------------------------------------------------------------------------- provenance
+def _provenance_section(summary: Mapping, out_dir: Path) -> str:
+    """Section 7: the run's identity (data set, its SHA-256, seed, settings, timing from ``run.json``), the input
+    files' SHA-256, the package versions and links to the machine-readable results."""
+    prov = summary.get("provenance") or {}
+    out = ['<h2 id="provenance">7. Provenance</h2>',
+           "<p>Everything needed to reproduce these numbers: the same input files (by SHA-256), the same "
+           "settings and seed, and the same package versions. Each window's posterior, with the same "
+           f'provenance, is in <code>{_e("posteriors/<id>.nc")}</code> (NetCDF, ArviZ layout).</p>']
+    run = {"data set": summary.get("dataset"), "identification mode": summary.get("mode"),
+           "data-set folder": prov.get("dataset_path"),
+           "data-set SHA-256": prov.get("dataset_sha256"), "run seed": summary.get("seed"),
+           "T_max [s]": summary.get("tmax_s"), "credible mass": summary.get("credible_mass"),
+           "settings fingerprint": prov.get("settings_fingerprint"),
+           "wall time of the run [s]": summary.get("wall_time_s")}
+    try:
+        log = json.loads((out_dir / "run.json").read_text())
+    except (OSError, ValueError):
+        log = {}
+    if isinstance(log, dict) and log:
+        run.update({"run started (UTC)": log.get("started_utc"),
+                    "run finished (UTC)": log.get("finished_utc"),
+                    "windows sampled in this run": len(log.get("computed") or []),
+                    "windows resumed from earlier runs": len(log.get("resumed") or []),
+                    "workers": log.get("scheduler") or log.get("workers")})
+    out.append(_kv_table({k: v for k, v in run.items() if v is not None}))
+    out.append("<p>Stage-2 settings:</p>" + _kv_table(_flat(summary.get("settings") or {})))
+    out.append("<p>Input files:</p>" + _table(["file", "SHA-256"], (
+        [_e(k), f"<code>{_e(v)}</code>"] for k, v in (prov.get("input_sha256") or {}).items())))
+    out.append("<p>Versions:</p>" + _table(["package", "version"], (
+        [_e(k), _e(v)] for k, v in (prov.get("versions") or {}).items())))
+    links = [p for p in ("summary.json", "run.json", "diagnosis.json") if (out_dir / p).is_file()]
+    if links:
+        out.append("<p>Machine-readable results: "
+                   + ", ".join(f'<a href="{_e(p)}">{_e(p)}</a>' for p in links) + ".</p>")
+    return "".join(out)
+
+
+def _flat(d: Mapping, prefix: str = "") -> dict:
+    """A nested mapping as one level, its keys joined with dots."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out

@@ -58,11 +58,11 @@ STEPS_PER_SAMPLE = 3
 #: the rule is met long before the next check 100 steps on). The effects' solves cost 20-50 times the eq. (7)
 #: kernel's, and no Gauss-Newton covariance comes with these problems; on four of rig-A's transients with the final
 #: model τ fell from 12-14 to 2-4 steps and the evaluations from 36 000-58 000 to 9 000-14 000 at the same
-#: intervals (closing note of stop 21); the move's tests are in tests/test_sampling.py.
+#: intervals; the move's tests are in tests/test_sampling.py.
 FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 50
 #: Walkers per ensemble of the final model's posteriors (3 ensembles as always): 8 instead of the baseline's 12.
 #: With τ of 3 steps the stopping rule's 50 τ, not the ESS, sets the chain's length, and ESS ≥ 1000 is met by
-#: 24 walkers as by 36; on three of rig-A's transients with the final model (stop 22) the evaluations fell by a
+#: 24 walkers as by 36; on three of rig-A's transients with the final model the evaluations fell by a
 #: third (21 696 → 14 496, 14 496 → 10 896) and on the curved reversal tri_0p50mm_s_s1 from 199 896 to 82 896
 #: (τ 90 → 55), the 90 % intervals the same to Monte Carlo error (α_V [33.6, 41.6] vs [33.7, 41.5]).
 FINAL_WALKERS = 8

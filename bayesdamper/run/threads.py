@@ -3,7 +3,7 @@
 bayesdamper parallelises over transients, folds and candidates with forked worker processes, one per core. The
 OpenBLAS of numpy and scipy would add a thread pool per process on top (by default a thread per core) and
 oversubscribe the cores: on the 2-core machine the residual-dynamics identification of rig-A took 48 s with
-OpenBLAS's default threads and 11.5 s with one thread per process (2 worker processes; stop 22). threadpoolctl, the
+OpenBLAS's default threads and 11.5 s with one thread per process (2 worker processes). threadpoolctl, the
 standard tool for this (maintained with joblib and scikit-learn), limits the pools of the running process, and
 forked workers inherit the limit.
 """
