@@ -14,10 +14,10 @@ identify; in the comment of each name):
   with 30 µm displacement noise, where the input's reconstruction error is of the order of the force noise (~4 min;
   a known limitation, strict xfail, ``make test-limits``, not in CI).
 
-Left out for time: STOP-SMOOTH (476 s), FAST-AR (530 s), FAST-25MM (300 s), SWEEP (350 s), RANDOM-AR (482 s);
-FAST-1C and SLOW-1C fail before identification (a one-cycle record of n samples lasts (n - 1) / rate, less than a
-cycle). ``BAYESDAMPER_COVERAGE_SEEDS`` (comma-separated) runs more seeds, ``BAYESDAMPER_COVERAGE_CASES`` other cases
-in the first test. Reported (``-s``): the harness's table per case and over all windows, and every window.
+Left out for time: STOP-SMOOTH (476 s), FAST-AR (530 s), FAST-25MM (300 s), SWEEP (350 s), RANDOM-AR (482 s),
+FAST-1C (318 s: 18 of 18 intervals hold the truth) and SLOW-1C (80 s: 14 of 18). ``BAYESDAMPER_COVERAGE_SEEDS``
+(comma-separated) runs more seeds, ``BAYESDAMPER_COVERAGE_CASES`` other cases in the first test. Reported (``-s``):
+the harness's table per case and over all windows, and every window.
 """
 
 from __future__ import annotations

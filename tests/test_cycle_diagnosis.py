@@ -47,8 +47,13 @@ CASES = {  # case: (f0 [N], Coulomb [N], the effects the loop must name)
 }
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("case", list(CASES))
+#: The cases CI runs (the control and both effects at once, about 10 min on 2 cores); the single effects (4-10 min
+#: each) run with ``make test-confusion``.
+IN_CI = ("control", "offset+friction")
+
+
+@pytest.mark.parametrize("case", [pytest.param(c, marks=pytest.mark.slow if c in IN_CI else pytest.mark.confusion)
+                                  for c in CASES])
 def test_the_loop_names_injected_effects_on_cycle_windows(tmp_path, case, capsys):
     """The loop names the injected effects, and only them, on independent sine + multisine records (one window of
     whole cycles each): every injected family named, the first selection one of them, the control clean; where an
@@ -80,7 +85,7 @@ def test_the_loop_names_injected_effects_on_cycle_windows(tmp_path, case, capsys
     assert saved["selected"] == d["selected"]
 
 
-@pytest.mark.slow
+@pytest.mark.confusion  # tens of minutes on 2 cores (the baseline's posteriors mix slowly): make test-confusion
 def test_lab_mr_main_job(tmp_path, capsys):
     """lab-MR (real passive MR damper, field off): the main job (identify, diagnose, report) and the loop's stated
     expectations.
