@@ -118,14 +118,12 @@ def input_error(jp, window, theta: np.ndarray, force: np.ndarray | None, noise) 
     of the window's residual, so its scale σ_w (marginalised) holds it: where it is a fraction of the noise it
     widens the intervals by less than that fraction squared; where it rivals the noise the intervals widen with
     σ_w/σ and say so."""
-    from dataclasses import replace as _replace
-
     if force is None:
         return {}
     diffs = []
     for rep in window.drive_replicates:
         local = rep.window(window.t_step, float(max(window.time[-1], window.t_step + 1e-9)))
-        f, ok = _replace(jp, drive=local, record_drive=rep if jp.effects is not None else None).simulate_window(theta)
+        f, ok = replace(jp, drive=local, record_drive=rep if jp.effects is not None else None).simulate_window(theta)
         if ok:
             diffs.append(float(np.sqrt(np.mean((f - force) ** 2))))
     if not diffs:

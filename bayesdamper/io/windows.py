@@ -149,26 +149,23 @@ def _decimate(x: np.ndarray, q: int) -> np.ndarray:
     return decimate(np.asarray(x, dtype=float), q, ftype="fir", zero_phase=True)
 
 
-def cycle_period(kind: str, details: dict, time: np.ndarray, displacement: np.ndarray, moving: np.ndarray) -> float:
+def cycle_period(kind: str, details: dict, time: np.ndarray, turns: list[int], moving: np.ndarray) -> float:
     """The record's own time scale [s]: a sine's period, else twice the median interval between the motion's
-    reversals (a triangular or random record's mean half-cycle), else the moving duration.
-
-    A reversal is a turning point of the displacement that it leaves by more than :data:`REVERSAL_FRACTION` of
-    its range (peak picking with hysteresis): the noise of a rest and the ringing of a reconstructed velocity
-    at a corner or a stop move the displacement by far less and make none."""
+    reversals ``turns`` (:func:`_reversals`: a triangular or random record's mean half-cycle), else the moving
+    duration."""
     if kind == "sine" and details.get("frequency_Hz", 0) > 0:
         return 1.0 / float(details["frequency_Hz"])
-    idx = np.flatnonzero(moving)
-    span = float(time[idx[-1]] - time[idx[0]]) if idx.size > 1 else float(time[-1] - time[0])
-    turns = _reversals(displacement, REVERSAL_FRACTION * float(np.ptp(np.quantile(displacement, (0.01, 0.99)))))
     if len(turns) >= 2:
         return float(2.0 * np.median(np.diff(time[turns])))
+    idx = np.flatnonzero(moving)
+    span = float(time[idx[-1]] - time[idx[0]]) if idx.size > 1 else float(time[-1] - time[0])
     return max(span, float(time[1] - time[0]))
 
 
 def _reversals(y: np.ndarray, h: float) -> list[int]:
     """Indices of the turning points of ``y`` that it then leaves by more than ``h`` (each the extreme sample);
-    the start is none."""
+    the start is none. Peak picking with hysteresis: with ``h`` = :data:`REVERSAL_FRACTION` of the range, the
+    noise of a rest and the ringing of a reconstructed velocity at a corner or a stop make no reversal."""
     turns, i_lo, i_hi, direction, i_ext = [], 0, 0, 0, 0
     for i in range(1, y.size):
         if direction == 0:  # until the first move by more than h
@@ -215,11 +212,11 @@ def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, 
     rest = np.abs(v) <= max(REST_FRACTION * v_peak, REST_NOISE_SIGMAS * velocity_error)
     moving = ~rest
     y_drive = drive.displacement(t)
-    hysteresis = REVERSAL_FRACTION * float(np.ptp(np.quantile(y_drive, (0.01, 0.99))))
-    if kind != "sine" and not _reversals(y_drive, hysteresis):
+    turns = _reversals(y_drive, REVERSAL_FRACTION * float(np.ptp(np.quantile(y_drive, (0.01, 0.99)))))
+    if kind != "sine" and not turns:
         raise DataError(f"{record.path}: the motion never reverses ({float(t[-1] - t[0]):.3g} s): not a triangular "
                         "test, and no cycle to identify")
-    period = cycle_period(kind, details, t, y_drive, moving)
+    period = cycle_period(kind, details, t, turns, moving)
     i0 = 0
     pre = np.zeros(0, dtype=int)
     if rest[:MIN_REST_SAMPLES].all():  # starts at rest: the rest samples give the step force
