@@ -9,9 +9,8 @@ injected family is named, the controls get nothing but the two-state physics, an
 most half where an effect exists. No threshold here was tuned on these cases: the rule's constants are the
 stated criterion's, the J ratio ≤ 0.5.
 
-The four cases take about 12 to 20 min on 2 cores (the servo with more reversals the longest: 15 transients,
-three rounds). The poppet case (marker ``confusion``) is
-a strict known failure.
+CI runs the control and the inertance (about 6 min on 2 cores); the poppet valve, friction + servo and the servo
+with more reversals (the longest: 15 transients, three rounds) run with ``make test-confusion``.
 """
 
 import json
@@ -53,9 +52,11 @@ CASES = {
 #: The reference poppet valve: the four-parameter profile has a narrow optimum (J 0.015 at the truth, 0.04 a
 #: damping ratio of 1.0 away, chattering valves all around it). Grid and Nelder-Mead ended at J 0.052 on the bounds
 #: ; the Levenberg-Marquardt search names the poppet, J 0.068 -> 0.0032.
-#: Not in CI (marker ``confusion``: make test-confusion; 5.3 min), as it is not one of the issue's required cases.
-_PARAMS = [pytest.param(c, marks=pytest.mark.confusion) if c == "poppet_valve"
-           else pytest.param(c, marks=pytest.mark.slow) for c in CASES]
+#: CI runs the control and the effect the library does not hold (the two answers the loop must get right: nothing
+#: on a clean damper, an unnamed form where no library form fits); the library forms run with ``make
+#: test-confusion`` (5-7 min each on 2 cores), to keep CI under its time budget.
+IN_CI = ("control", "inertance (not in the library)")
+_PARAMS = [pytest.param(c, marks=pytest.mark.slow if c in IN_CI else pytest.mark.confusion) for c in CASES]
 
 
 def _dataset(folder, effects: dict, cycles: float, seed: int):
