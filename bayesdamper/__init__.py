@@ -47,6 +47,9 @@ _LAZY = {
     "run_identify": "bayesdamper.run.identify",
     "run_diagnosis": "bayesdamper.run.diagnose",
     "run_report": "bayesdamper.run.report",
+    "predict": "bayesdamper.run.predict",
+    "Calibration": "bayesdamper.inference.calibration",
+    "fit_hierarchy": "bayesdamper.inference.hierarchy",
 }
 
 __all__ = [

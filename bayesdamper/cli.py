@@ -17,7 +17,9 @@ eq. (8) from the plateaus (stage 1), samples the posterior of the liquid-gas rat
 pressure p_R of eq. (6) for every transient with emcee (stage 2), checks convergence, and diagnoses what the
 single-state model eq. (7) misses. Sine, sweep, multisine or random records are cut into windows of whole
 cycles, each identified with its flow coefficients, alpha_V and p_R sampled together; every window goes through
-the same likelihood, sampler and diagnosis as a transient."""
+the same likelihood, sampler and diagnosis as a transient. The windows' posteriors become a drift law of alpha_V
+and p_R with speed (trend plus scatter between tests), and the calibrated damper predicts its force, with bands,
+for any displacement history."""
 
 EPILOG = """\
 examples:
@@ -25,6 +27,7 @@ examples:
   bayesdamper report data/rig-A --out results/rig-A  identify + diagnose + HTML report (the main job)
   bayesdamper identify data/rig-A --out OUT --only tri_1p50mm_s_s0
   bayesdamper diagnose data/rig-A --out OUT          re-uses OUT's posteriors of the same settings
+  bayesdamper predict OUT --input history.csv --out PRED   the calibrated damper on a new history
 
 Errors are one line on stderr with exit status 2; nothing in --out is written before the inputs are
 validated. Long runs show a progress bar on a terminal and one summary line per phase otherwise."""
@@ -198,6 +201,24 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
     g.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
                    help=_MODE_HELP)
+    r = sub.add_parser("predict", help="run a calibrated damper on a displacement history, with bands",
+                       description="Drive the damper calibrated in RESULTS (eq. (7), or eq. (7) with the effects "
+                                   "diagnose selected) by a displacement history: the force's predictive median "
+                                   "and 50 %% / 90 %% bands from the drift law and the measurement noise, as CSV, JSON "
+                                   "and a figure. A history whose operating speed lies outside the calibrated range "
+                                   "is predicted with the law extrapolated, and the command says so.")
+    r.add_argument("results", help="output folder of bayesdamper identify, diagnose or report")
+    r.add_argument("--input", required=True, metavar="FILE.csv",
+                   help="CSV with time_s [s] and displacement_m [m] at a constant rate; optional force_N [N] "
+                        "(the measured force: the prediction is scored against it) and velocity_m_s [m/s]")
+    r.add_argument("--out", required=True, help="output folder for prediction.csv, prediction.json, figures/")
+    r.add_argument("--draws", type=int, default=200, help="predictive draws [-] (default: %(default)s)")
+    r.add_argument("--model", default="auto", choices=["auto", "final", "baseline"],
+                   help="final: with the diagnosed effects; baseline: eq. (7); auto: final where diagnose "
+                        "selected effects (default: %(default)s)")
+    r.add_argument("--seed", type=int, default=0, help="seed of the draws [-] (default: %(default)s)")
+    r.add_argument("--workers", type=int, default=0, help="worker processes [-] (default: %(default)s = all cores)")
+    r.add_argument("--no-figures", action="store_true", help="skip the figure (default: write it)")
     return p
 
 
@@ -230,6 +251,14 @@ def main(argv: list[str] | None = None) -> int:
                 run_diagnosis(args.data_dir, args.out, seed=args.seed, effects=effects,
                               workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
                               max_steps=args.max_steps, figures=not args.no_figures, mode=args.mode)
+            elif args.command == "predict":
+                import os
+
+                from bayesdamper.run.predict import predict
+
+                predict(args.results, args.input, args.out, n_draws=args.draws, seed=args.seed,
+                        workers=args.workers if args.workers > 0 else (os.cpu_count() or 1), model=args.model,
+                        figures=not args.no_figures)
             elif args.command in ("identify", "report"):
                 from bayesdamper.run.identify import run_identify
                 from bayesdamper.run.report import run_report

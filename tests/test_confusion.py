@@ -93,6 +93,16 @@ def test_confusion_on_reference_data(case, tmp_path):
            "J_after": d["final"]["J_pooled"], "ratio": ratio,
            "first_round": [(c["effect"], round(c["score"], 1), c.get("lovo")) for c in d["candidates"][:4]]}
     print("CONFUSION-REF", json.dumps(row, default=str))
+    # the calibrated damper of every model the diagnosis ends with, checked by predicting each left-out test
+    check = d["prediction_check"]["models"]
+    assert (tmp_path / "out" / "calibration.nc").is_file()
+    assert bool(d["selected"]) == (tmp_path / "out" / "calibration-final.nc").is_file()
+    assert len(check) == (2 if d["selected"] else 1)
+    for m in check.values():
+        assert {r["test"] for r in m["rows"]} == {w["test"] for w in d["windows"]}
+        assert all(0.0 <= r["coverage_90"] <= 1.0 and r["failed_solves"] == 0 for r in m["rows"])
+    print("PREDICTION-CHECK", json.dumps({k: {q: m[q] for q in ("coverage_90", "coverage_50", "J_median")}
+                                          for k, m in check.items()}))
     if not effects:
         assert named <= {"two-state physics"}, row  # the control gets no rig effect
         return

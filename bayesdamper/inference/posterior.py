@@ -126,3 +126,25 @@ def read_transient(path: Path) -> dict:
             "force": np.asarray(idata.observed_data["force_N"].values, dtype=float),
             "band": _opt("band_N"), "ls_force": _opt("ls_force_N"), "displacement": _opt("displacement_m"),
             "attrs": provenance(idata)}
+
+
+def write_draws(path: Path, draws: dict[str, np.ndarray], constant: dict[str, np.ndarray], attrs: dict) -> None:
+    """Store draws that are not one window's posterior (a hyper-posterior, say), atomically: ``draws`` as the
+    posterior group (each an array of shape (n_draws,), stored as one chain), ``constant`` as constant data and
+    ``attrs`` (JSON values) on every group."""
+    flat_attrs = {k: v if isinstance(v, str) else json.dumps(v) for k, v in attrs.items()}
+    idata = az.from_dict(posterior={k: np.asarray(v, float)[None, :] for k, v in draws.items()},
+                         constant_data=constant)
+    for group in idata.groups():
+        idata[group].attrs.update(flat_attrs)
+    write_netcdf(idata, path)
+
+
+def read_draws(path: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
+    """What :func:`write_draws` stored: the draws (flattened over chains), the constant data and the attributes
+    (JSON values decoded)."""
+    idata = read_netcdf(path)
+    draws = {str(k): np.asarray(v.values, float).reshape(-1) for k, v in idata.posterior.data_vars.items()}
+    const = ({str(k): np.asarray(v.values) for k, v in idata.constant_data.data_vars.items()}
+             if "constant_data" in idata.groups() else {})
+    return draws, const, provenance(idata)

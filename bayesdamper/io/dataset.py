@@ -30,7 +30,8 @@ from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.io.damper_file import DAMPER_FILE, read_damper_toml
 
-__all__ = ["COLUMNS", "DAMPER_FILE", "VELOCITY_COLUMN", "Dataset", "TestRecord", "load_dataset", "load_record"]
+__all__ = ["COLUMNS", "DAMPER_FILE", "VELOCITY_COLUMN", "Dataset", "TestRecord", "load_dataset", "load_history",
+           "load_record"]
 
 #: Required CSV columns, in the order the arrays are returned.
 COLUMNS = ("time_s", "displacement_m", "force_N")
@@ -177,7 +178,7 @@ def _parse_header(path: Path, header: str) -> tuple[int, int, int]:
     return tuple(names.index(c) for c in COLUMNS)  # type: ignore[return-value]
 
 
-def _diagnose(path: Path, lines: list[str], cols: tuple[int, int, int]) -> str:
+def _diagnose(path: Path, lines: list[str], cols: tuple[int, ...], names: tuple[str, ...] = COLUMNS) -> str:
     """Slow per-row scan naming the first bad cell (runs only after the fast parser failed)."""
     need = max(cols) + 1
     for lineno, line in enumerate(lines[1:], start=2):
@@ -187,7 +188,7 @@ def _diagnose(path: Path, lines: list[str], cols: tuple[int, int, int]) -> str:
         cells = body.split(",")
         if len(cells) < need:
             return f"line {lineno} has {len(cells)} field(s), expected at least {need}"
-        for name, c in zip(COLUMNS, cols, strict=True):
+        for name, c in zip(names, cols, strict=True):
             cell = cells[c].strip()
             try:
                 if "_" in cell:  # float() accepts digit separators, numpy does not
@@ -275,28 +276,8 @@ def _check_tmax(tmax: float | None) -> float | None:
     return t
 
 
-def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
-    """Read and validate one test CSV.
-
-    Parameters
-    ----------
-    path : str or Path
-        CSV file with columns ``time_s`` [s], ``displacement_m`` [m] and ``force_N`` [N].
-    tmax : float or None
-        Transient window length T_max of eq. (9) [s]; the record must last at least
-        ``tmax + DURATION_MARGIN``. None: no duration rule (whole-record identification).
-
-    Returns
-    -------
-    TestRecord
-
-    Raises
-    ------
-    DataError
-        With a one-line ``"<path>: <problem>"`` message for any unreadable or implausible file.
-    """
-    tmax = _check_tmax(tmax)
-    path = Path(path)
+def _read_lines(path: Path) -> tuple[list[str], str]:
+    """The non-blank-led text lines of a CSV file and its SHA-256, or a one-line DataError."""
     if not path.exists():
         raise DataError(f"{path}: no such file")
     if path.is_dir():
@@ -321,6 +302,32 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
         lines.pop(0)
     if not lines:
         raise DataError(f"{path}: empty file (expected a header {','.join(COLUMNS)} and data rows)")
+    return lines, sha
+
+
+def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
+    """Read and validate one test CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV file with columns ``time_s`` [s], ``displacement_m`` [m] and ``force_N`` [N].
+    tmax : float or None
+        Transient window length T_max of eq. (9) [s]; the record must last at least
+        ``tmax + DURATION_MARGIN``. None: no duration rule (whole-record identification).
+
+    Returns
+    -------
+    TestRecord
+
+    Raises
+    ------
+    DataError
+        With a one-line ``"<path>: <problem>"`` message for any unreadable or implausible file.
+    """
+    tmax = _check_tmax(tmax)
+    path = Path(path)
+    lines, sha = _read_lines(path)
     cols = _parse_header(path, lines[0])
     if not any(line.split("#", 1)[0].strip() for line in lines[1:]):
         raise DataError(f"{path}: empty file: a header but no data rows")
@@ -341,6 +348,46 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
         sha256=sha,
         velocity=_read_velocity(path, lines, time.size),
     )
+
+
+def load_history(path: str | Path) -> TestRecord:
+    """Read and validate a displacement history to drive a calibrated damper (``bayesdamper predict``).
+
+    The CSV needs ``time_s`` [s] and ``displacement_m`` [m] at a constant rate; a ``force_N`` column, if present,
+    is the measured force the prediction is compared with, and ``velocity_m_s`` a measured velocity. The checks
+    and one-line errors are those of :func:`load_record`, with no duration rule.
+
+    Returns
+    -------
+    TestRecord
+        Its ``force`` is the measured force, or all NaN when the file has none.
+    """
+    path = Path(path)
+    lines, sha = _read_lines(path)
+    names = [c.strip().strip('"').strip("'").strip() for c in lines[0].split(",")]
+    if "force_N" in names:
+        return load_record(path, tmax=None)
+    need = ("time_s", "displacement_m")
+    missing = [c for c in need if c not in names]
+    if missing:
+        shown = ",".join(names)
+        shown = shown if len(shown) <= 80 else shown[:77] + "..."
+        raise DataError(f"{path}: missing column(s) {', '.join(missing)} in header line 1 (expected "
+                        f"time_s,displacement_m[,force_N][,velocity_m_s]; found {shown!r})")
+    cols = tuple(names.index(c) for c in need)
+    if not any(line.split("#", 1)[0].strip() for line in lines[1:]):
+        raise DataError(f"{path}: empty file: a header but no data rows")
+    try:
+        data = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=cols, ndmin=2, dtype=float)
+    except (ValueError, TypeError, OverflowError, IndexError):
+        raise DataError(f"{path}: {_diagnose(path, lines, cols, need)}") from None
+    if data.shape[0] == 0:
+        raise DataError(f"{path}: empty file: a header but no data rows")
+    time, y = data[:, 0], data[:, 1]
+    _check_columns(path, lines, time, y, np.zeros_like(time), None)
+    return TestRecord(name=path.stem, path=path, time=_readonly(time), displacement=_readonly(y),
+                      force=_readonly(np.full(time.size, np.nan)), sha256=sha,
+                      velocity=_read_velocity(path, lines, time.size))
 
 
 def _read_velocity(path: Path, lines: list[str], n: int) -> np.ndarray | None:

@@ -144,7 +144,7 @@ def write_identify_figures(out_dir: Path, ds, segs, static, results, summary: di
     entries = summary.get("segments") or [r.entry for r in results]
     if entries:
         jobs.append(("figure9_drift", "figure9_drift", (entries, summary.get("drift") or None, mass),
-                     {"title": name}, fig_dir / "figure9_drift", PAPER_FORMATS))
+                     {"title": name, "law": summary.get("drift_model")}, fig_dir / "figure9_drift", PAPER_FORMATS))
     for r in results:
         sid = r.entry["id"]
         w = by_id.get(sid)
@@ -226,9 +226,12 @@ def write_diagnosis_figures(out_dir: Path, windows, base, final, base_resid, fin
                   fig_dir / "figure8_after", PAPER_FORMATS)]
     jobs += [
         ("figure9_before", "figure9_drift", ([r.entry for r in base], diagnosis["drift_before"], mass),
-         {"title": "before: eq. (7)"}, fig_dir / "figure9_before", PAPER_FORMATS),
+         {"title": "before: eq. (7)", "law": diagnosis.get("drift_model_before")}, fig_dir / "figure9_before",
+         PAPER_FORMATS),
         ("figure9_after", "figure9_drift", ([r.entry for r in final], diagnosis["drift_after"], mass),
-         {"title": f"after: eq. (7) + {sel}"}, fig_dir / "figure9_after", PAPER_FORMATS)]
+         {"title": f"after: eq. (7) + {sel}",
+          "law": diagnosis.get("drift_model_after") or diagnosis.get("drift_model_before")},
+         fig_dir / "figure9_after", PAPER_FORMATS)]
     by_id = {w.id: w for w in windows}
     cycles = {r.entry["id"] for r in _pick([r for r in base if r.entry["kind"] == "cycles"])}
     if cycles:

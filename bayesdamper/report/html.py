@@ -20,6 +20,7 @@ from pathlib import Path
 
 from bayesdamper._version import __version__
 from bayesdamper.io.outputs import atomic_write_bytes
+from bayesdamper.report.html_law import law_table, prediction_check
 from bayesdamper.report.html_parts import (
     _PARAMS,
     _STATIC_UNITS,
@@ -390,12 +391,24 @@ def _figures_section(summary: Mapping, out_dir: Path) -> str:
                "piled against a prior bound, when there are any). A slope whose credible interval excludes 0 is a "
                "real drift.</p>"
                + _drift_table(summary.get("drift"), mass)
+               + law_table(summary.get("drift_model"), mass)
                + _figures(out_dir, figs.get("figure9_drift"), "Figure 9: p_R and 100/α_V against piston speed",
                           "Figure 9 was not drawn (the run used --no-figures)."))
     return "".join(out)
 
 
 # ---------------------------------------------------------------------------------------------
+
+
+def _calibrated_blocks(diagnosis, mass: float) -> list[str]:
+    """The diagnosis's calibrated damper: the drift law with the selected effects and the prediction check."""
+    if not diagnosis:
+        return []
+    out = []
+    if diagnosis.get("drift_model_after"):
+        out.append("<p>The drift law with the selected effects:</p>" + law_table(diagnosis["drift_model_after"], mass))
+    out.append(prediction_check(diagnosis.get("prediction_check")))
+    return out
 
 
 def render_report(summary: dict, diagnosis: dict | None, out_dir: Path, *,
@@ -432,7 +445,7 @@ def render_report(summary: dict, diagnosis: dict | None, out_dir: Path, *,
         ("drift", "Drift"), ("diagnosis", "Diagnosis"), ("provenance", "Provenance")))
     sections = [_overview(summary, diagnosis), _data_section(summary), _static_section(summary, out_dir),
                 _posterior_section(summary), _figures_section(summary, out_dir),
-                _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note),
+                _diagnosis_section(diagnosis, out_dir, mass, diagnosis_note, _calibrated_blocks(diagnosis, mass)),
                 _provenance_section(summary, out_dir)]
     method = ("the single-state model eq. (7) with the pressure-difference bulk modulus eq. (6), identified window "
               "by window (the transients after the velocity steps of triangular tests, with the flow coefficients "

@@ -337,10 +337,11 @@ def _window_j_table(diagnosis: Mapping) -> str:
             + ":</p>" + _table(header, rows, left=2))
 
 
-def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, note: str | None) -> str:
+def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, note: str | None,
+                       extra: Iterable[str] = ()) -> str:
     """Section 6: what the diagnosis tested and selected, the noise it judged against (and where from), the
     candidates with their held-out gains and outlying folds, the backward check, J per window before and after,
-    drift before and after and its figures."""
+    drift before and after, the ``extra`` blocks (the calibrated damper's) and its figures."""
     head = '<h2 id="diagnosis">6. Diagnosis of unmodelled effects</h2>'
     if not diagnosis:
         return head + ('<p class="note">No diagnosis is available for this run'
@@ -368,6 +369,7 @@ def _diagnosis_section(diagnosis: Mapping | None, out_dir: Path, mass: float, no
                    + _drift_table(diagnosis.get("drift_before"), mass))
         out.append("<p>…and after it (with the selected effects):</p>"
                    + _drift_table(diagnosis.get("drift_after"), mass))
+    out.extend(extra)
     for name, paths in (diagnosis.get("figures") or {}).items():
         paths = paths if isinstance(paths, list) else [paths]
         caption = _DIAGNOSIS_FIGURES.get(name, f"diagnosis: {str(name).replace('_', ' ')}")

@@ -101,8 +101,25 @@ def _drift_note(d: Mapping, name: str, credible_mass: float) -> str:
             f"{_pct(credible_mass)} interval [{k * s['lo']:.3g}, {k * s['hi']:.3g}]: {verdict}")
 
 
+def _draw_law(ax, v_mm_s: np.ndarray, law: Mapping, name: str) -> None:
+    """The hierarchical law on one Figure 9 panel: p_R in MPa, α_V as 100/α_V (bands swap ends)."""
+    def y(a):
+        a = np.asarray(a, float)
+        return a * PRESSURE_DISPLAY if name == "p_R_Pa" else 100.0 / a
+
+    band = law["law"]
+    ax.fill_between(v_mm_s, y(band["lo"]), y(band["hi"]), color="0.5", alpha=0.2, lw=0, zorder=0,
+                    gid=f"law-band-{name}")
+    ax.fill_between(v_mm_s, y(band["q25"]), y(band["q75"]), color="0.4", alpha=0.3, lw=0, zorder=0,
+                    gid=f"law-band50-{name}")
+    ax.plot(v_mm_s, y(band["median"]), color="k", lw=1.2, zorder=1, gid=f"law-{name}")
+    if "new_test" in law:
+        for k in ("lo", "hi"):
+            ax.plot(v_mm_s, y(law["new_test"][k]), color="k", lw=0.8, ls=":", zorder=1, gid=f"law-new-{k}-{name}")
+
+
 def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, credible_mass: float = 0.9, *,
-                  dodge: float = 0.012, yscale: str = "log", title: str | None = None):
+                  dodge: float = 0.012, yscale: str = "log", title: str | None = None, law: Mapping | None = None):
     """Figure 9: identified p_R and 100/α_V against piston speed, with credible intervals.
 
     Parameters
@@ -124,6 +141,11 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
         poorly constrained transients span decades (the paper's Fig. 9 is linear).
     title : str, optional
         Figure title (e.g. the data set's name).
+    law : dict, optional
+        The hierarchical drift law (``summary["drift_model"]``, :meth:`~bayesdamper.inference.hierarchy.
+        HierarchyFit.summary`): drawn instead of the straight line, as its median, its 50 % and credible bands
+        (the population law) and dotted lines bounding a new test's parameters (the law plus the scatter between
+        tests).
 
     Returns
     -------
@@ -168,6 +190,11 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     speeds = np.array([e["velocity_m_s"] for e in entries], dtype=float)
     have_line = False
     for name, ax in (("p_R_Pa", ax_p), ("alpha_V", ax_a)):
+        lw = ((law or {}).get("parameters") or {}).get(name) if (law or {}).get("fitted", True) else None
+        if lw:
+            _draw_law(ax, np.asarray(law["speed_grid_m_s"]) * SPEED_DISPLAY, lw, name)
+            have_line = True
+            continue
         d = (drift or {}).get(name)
         if not d or speeds.size == 0:
             continue
@@ -207,7 +234,14 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
     if any_grey:
         handles.append(Line2D([], [], color=NOT_CONVERGED_COLOR, lw=0, marker="o", mec="k", ms=6,
                               label="sampler not converged (grey)"))
-    if have_line:
+    if have_line and law:
+        from matplotlib.patches import Patch
+
+        handles += [Line2D([], [], color="k", lw=1.2, label="drift law, posterior median"),
+                    Patch(color="0.5", alpha=0.35, label=f"law: 50 % and {_pct(credible_mass)} bands"),
+                    Line2D([], [], color="k", lw=0.8, ls=":", label=f"a new test ({_pct(credible_mass)}): law + "
+                                                                    "scatter between tests")]
+    elif have_line:
         handles.append(Line2D([], [], color="k", lw=1.2, label="trend, posterior median"))
     fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=8,
                frameon=False)

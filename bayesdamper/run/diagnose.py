@@ -43,6 +43,7 @@ from bayesdamper.run.outfolder import (
     fingerprint_basis,
     settings_fingerprint,
 )
+from bayesdamper.run.predict import calibrate_and_check
 from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import identify_all
 from bayesdamper.run.threads import one_blas_thread
@@ -246,6 +247,10 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     diagnosis = summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise, noises, rows,
                                     structure, signature, rounds, selected, fixed, names, settings,
                                     final_settings(settings), credible_mass, seed, prov)
+    with progress.phase("diagnose: drift law and prediction check", unit="model"):
+        diagnosis.update(calibrate_and_check(out_dir, ds, windows, base, final, fixed if selected else {}, seed=seed,
+                                             credible_mass=credible_mass, provenance=prov, workers=workers,
+                                             progress=progress))
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures
 

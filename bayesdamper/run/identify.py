@@ -34,6 +34,7 @@ from bayesdamper.run.outfolder import (
     settings_fingerprint,
 )
 from bayesdamper.run.plan import check_mode, plan_dataset
+from bayesdamper.run.predict import CALIBRATION_FILE, write_calibration
 from bayesdamper.run.progress import Progress, count_files
 from bayesdamper.run.stages import data_table, identify_all
 
@@ -207,6 +208,8 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
             "method": "no plateaus: the flow coefficients are sampled in every window with α_V, p_R and the start's "
                       "Δp (flat prior); the noise of each window is estimated from its least-squares residual "
                       "away from the excitation's band and harmonics", "propagated": True, "coupling": "joint"}
+    _, summary["drift_model"] = write_calibration(out_dir / CALIBRATION_FILE, results, ds.damper, None, seed=seed,
+                                               credible_mass=credible_mass, provenance=prov, progress=progress)
     if figures:
         from bayesdamper.report.figures import write_identify_figures
 
