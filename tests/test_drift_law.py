@@ -21,6 +21,7 @@ from bayesdamper.inference.hierarchy import (
     fit_hierarchy,
     leave_out,
 )
+from bayesdamper.inference.sampling import SamplerSettings
 
 SPEEDS = np.linspace(0.5e-3, 1.5e-3, 9)
 #: The known law (log units): log α_V falls and log p_R rises with speed, linear in speed.
@@ -149,11 +150,11 @@ def test_new_test_draws_follow_law_plus_both_scatters(fit1):
 
 @pytest.mark.slow
 def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
-    """Twelve data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
+    """Eight data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
     of speeds (the issue's criterion, pooled), and each true scatter inside its 90 % interval at least the binomial
-    0.5 % quantile of 12 x 2 intervals (19)."""
+    0.5 % quantile of 8 x 2 intervals (11)."""
     hits, tau_hits, rows = [], 0, []
-    for seed in range(12):
+    for seed in range(8):
         fit = fit_hierarchy(synthetic_windows(100 + seed), seed=seed)
         s = fit.summary(0.9)
         h = [_law_hits(fit, j) for j in (0, 1)]
@@ -163,9 +164,9 @@ def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
         rows.append(f"seed {100 + seed}: law in band at {h[0]:.2f} / {h[1]:.2f} of speeds, scatter intervals "
                     f"[{t[0]['lo']:.3f}, {t[0]['hi']:.3f}] / [{t[1]['lo']:.3f}, {t[1]['hi']:.3f}]")
     with capsys.disabled():
-        print("\n" + "\n".join(rows) + f"\npooled law coverage {np.mean(hits):.3f}, scatter {tau_hits}/24")
+        print("\n" + "\n".join(rows) + f"\npooled law coverage {np.mean(hits):.3f}, scatter {tau_hits}/16")
     assert np.mean(hits) >= 0.85
-    assert tau_hits >= binom.ppf(0.005, 24, 0.9)
+    assert tau_hits >= binom.ppf(0.005, 16, 0.9)
 
 
 def test_report_table_and_figure9_show_the_law(fit1):
@@ -195,3 +196,30 @@ def test_report_table_and_figure9_show_the_law(fit1):
                   "extrapolated": True}], "coverage_90": 0.874, "coverage_50": 0.5, "J_median": 0.035}}}
     table = prediction_check(check)
     assert "87% (extrapolated)" in table and "0.0350" in table and "eq. (7): in 90 % band" in table
+
+
+def test_a_covariate_of_the_records_enters_the_law():
+    """Tests at temperatures 20-60 °C with log p_R rising 0.01 per °C (and α_V independent of it): the law's
+    temperature slope holds the truth in its 90 % interval, and a law without the covariate is what a single
+    temperature gives."""
+    rng = np.random.default_rng(11)
+    wins = []
+    temps = rng.uniform(20.0, 60.0, SPEEDS.size)
+    chol = np.linalg.cholesky(POST_COV)
+    for i, (v, temp) in enumerate(zip(SPEEDS, temps, strict=True)):
+        theta = law([v])[0] + np.array([0.0, 0.01 * (temp - 40.0)]) + np.array(TAU) * rng.standard_normal(2)
+        for j in range(3):
+            centre = theta + np.array(OMEGA) * rng.standard_normal(2) + chol @ rng.standard_normal(2)
+            wins.append(WindowDraws(f"t{i}w{j}", float(v), np.exp(centre + rng.standard_normal((1000, 2)) @ chol.T),
+                                    f"t{i}", float(temp)))
+    fit = fit_hierarchy(wins, seed=0, covariate_name="temperature_C")
+    s = fit.summary(0.9)
+    slope = s["covariate"]["slope_log_per_unit"]
+    assert slope["p_R_Pa"]["lo"] <= 0.01 <= slope["p_R_Pa"]["hi"]
+    assert slope["alpha_V"]["lo"] <= 0.0 <= slope["alpha_V"]["hi"]
+    assert s["covariate"]["range"] == [pytest.approx(temps.min()), pytest.approx(temps.max())]
+    hot, cold = (np.median(np.log(fit.new_test(1e-3, 4000, np.random.default_rng(0), t))[:, 1]) for t in (60, 20))
+    assert hot - cold == pytest.approx(0.4, abs=0.15)  # 40 °C x 0.01; the scatter's Monte Carlo error is ~0.01
+    same = [WindowDraws(w.id, w.speed, w.draws, w.test, 40.0) for w in wins]
+    short = SamplerSettings(n_ensembles=2, n_walkers=14, max_steps=100, check_every=100)  # only the law's terms
+    assert fit_hierarchy(same, seed=0, covariate_name="temperature_C", sampler=short).covariate is None

@@ -191,3 +191,39 @@ def test_calibration_round_trip_and_noise_draws(tmp_path):
     # at half the rate the same correlation time gives φ²
     e2 = back.noise(20, 5000, 50.0, seed=1)
     assert np.sum(e2[:, 1:] * e2[:, :-1]) / np.sum(e2[:, :-1] ** 2) == pytest.approx(0.36, abs=0.02)
+
+
+def test_a_temperature_covariate_is_read_from_the_history(tmp_path):
+    """A law with a temperature term: the history's mean temperature drives it (p_R rises 1 % per °C here, so the
+    median force's transients move), a history without the column gets the calibrated mean and says so, and one
+    outside the calibrated temperatures says it is extrapolated."""
+    cal = _calibration()
+    n = len(cal.hierarchy.draws)
+    beta = np.column_stack([cal.hierarchy.draws[:, 0:2], np.zeros(n), cal.hierarchy.draws[:, 2:4],
+                            np.full(n, 0.1)])  # 0.1 log units per 10 °C on p_R, none on α_V
+    cal.hierarchy.draws = np.column_stack([beta, cal.hierarchy.draws[:, 4:]])
+    cal.hierarchy.covariate = {"name": "temperature_C", "c_c": 40.0, "c_s": 10.0, "range": [20.0, 60.0]}
+    res = tmp_path / "res"
+    res.mkdir()
+    cal.save(res / "calibration.nc")
+    base = _sine_history(tmp_path / "h.csv", force=False)
+    rows = base.read_text().splitlines()
+    outs = {}
+    for temp in (None, 50.0, 90.0):
+        hist = base
+        if temp is not None:
+            hist = tmp_path / f"h{temp:.0f}.csv"
+            hist.write_text("\n".join([rows[0] + ",temperature_C"] + [r + f",{temp}" for r in rows[1:]]) + "\n")
+        out = tmp_path / f"p{temp}"
+        r = _cli(res, "--input", hist, "--out", out, "--draws", 30, "--workers", 1, "--no-figures")
+        assert r.returncode == 0, r.stderr
+        outs[temp] = (json.loads((out / "prediction.json").read_text())["covariate"], r.stderr)
+    assert outs[None][0]["source"] == "the calibration's mean" and outs[None][0]["value"] == 40.0
+    assert "the calibration's mean: the history has no such column" in outs[None][1]
+    assert outs[50.0][0] == {"name": "temperature_C", "value": 50.0, "calibrated_range": [20.0, 60.0],
+                             "source": "the history", "extrapolated": False}
+    assert outs[50.0][1] == ""
+    assert outs[90.0][0]["extrapolated"] and "outside the calibrated range 20-60" in outs[90.0][1]
+    med = {t: np.loadtxt((tmp_path / f"p{t}" / "prediction.csv").read_text().splitlines()[1:], delimiter=",")[:, 2]
+           for t in (None, 90.0)}
+    assert np.max(np.abs(med[90.0] - med[None])) > 20.0  # p_R e^0.5 higher at 90 °C moves the transients

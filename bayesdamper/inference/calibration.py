@@ -76,7 +76,8 @@ class Calibration:
         h = self.hierarchy
         cols = {f"x{i}": h.draws[:, i] for i in range(h.draws.shape[1])}
         attrs = {"degree": h.degree, "v_c": h.v_c, "v_s": h.v_s, "windows": h.windows, "sampling": h.sampling,
-                 "hierarchy_seed": h.seed, "within": h.within, "noise_sigma_N": self.noise_sigma_N,
+                 "hierarchy_seed": h.seed, "within": h.within, "covariate": h.covariate,
+                 "noise_sigma_N": self.noise_sigma_N,
                  "noise_phi": self.noise_phi,
                  "effects": self.effects, "damper": asdict(self.damper), "model": self.model,
                  "sample_rate_Hz": self.sample_rate_Hz, "provenance": self.provenance,
@@ -93,19 +94,20 @@ class Calibration:
         draws, const, attrs = read_draws(Path(path))
         x = np.column_stack([draws[f"x{i}"] for i in range(len(draws))])
         h = HierarchyFit(x, int(attrs["degree"]), float(attrs["v_c"]), float(attrs["v_s"]), attrs["windows"],
-                         attrs["sampling"], int(attrs["hierarchy_seed"]), bool(attrs["within"]))
+                         attrs["sampling"], int(attrs["hierarchy_seed"]), bool(attrs["within"]),
+                         attrs.get("covariate"))
         return cls(h, np.asarray(const["flow_draws"], float), float(attrs["noise_sigma_N"]),
                    float(attrs["noise_phi"]), attrs["effects"], DamperConstants(**attrs["damper"]), attrs["model"],
                    float(attrs["sample_rate_Hz"]), attrs.get("provenance") or {})
 
     # ------------------------------------------------------------------ prediction
     def simulate(self, time: np.ndarray, drive, speed: float, start_velocity: float, n_draws: int,
-                 seed: int, map_fn=None) -> tuple[np.ndarray, np.ndarray, int]:
+                 seed: int, map_fn=None, covariate: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
         """Model forces [N] of ``n_draws`` draws of a new test (no noise), shape (n_ok, n_times); the draws
         (α_V, p_R, C_L12, C_Q12, C_L21, C_Q21), shape (n_ok, 6); and how many solves failed. ``map_fn(f, tasks)``
         runs the solves (default: one after another in this process)."""
         rng = np.random.default_rng(np.random.SeedSequence([seed, 11]))
-        dyn = self.hierarchy.new_test(speed, n_draws, rng)
+        dyn = self.hierarchy.new_test(speed, n_draws, rng, covariate)
         flow = self.flow_draws[rng.choice(len(self.flow_draws), n_draws)]
         theta = np.column_stack([dyn, flow])
         tasks = [(self, np.asarray(time, float), drive, float(start_velocity), th) for th in theta]
@@ -172,9 +174,11 @@ def ar1_of(residuals: list[np.ndarray]) -> tuple[float, float]:
     return sd, float(np.clip(phi, -MAX_PHI, MAX_PHI))
 
 
-def calibration_windows(results: list, degree: int = 1) -> tuple[list, list[WindowDraws]]:
+def calibration_windows(results: list, degree: int = 1, covariates: dict | None = None
+                        ) -> tuple[list, list[WindowDraws]]:
     """The results the law is fitted to and their draws: the converged windows whose posterior is not piled against
-    a prior bound (a mean set by the prior box, not by the test), or all where fewer than ``degree + 2`` qualify."""
+    a prior bound (a mean set by the prior box, not by the test), or all where fewer than ``degree + 2`` qualify;
+    ``covariates`` maps a test to its covariate value (its mean temperature, say)."""
     good = [r for r in results if r.entry["converged"] and not (r.entry.get("shape") or {}).get("at_prior_bound")]
     use = good if len(good) >= degree + 2 and len({r.entry["velocity_m_s"] for r in good}) > degree else results
     wins = []
@@ -182,20 +186,23 @@ def calibration_windows(results: list, degree: int = 1) -> tuple[list, list[Wind
         idx = [list(r.names).index(n) for n in NAMES]
         wins.append(WindowDraws(r.entry["id"], float(r.entry["velocity_m_s"]),
                                 np.asarray(r.chains, float)[..., idx].reshape(-1, len(NAMES)),
-                                str(r.entry.get("test") or r.entry["id"])))
+                                str(r.entry.get("test") or r.entry["id"]),
+                                (covariates or {}).get(str(r.entry.get("test") or r.entry["id"]))))
     return use, wins
 
 
 def calibrate(results, damper: DamperConstants, effects: dict | None = None, *, seed: int = 0, degree: int = 1,
-              provenance: dict | None = None, progress=None) -> Calibration:
+              provenance: dict | None = None, progress=None, covariates: dict | None = None,
+              covariate_name: str | None = None) -> Calibration:
     """The calibration of a damper from its windows' results (objects with ``entry``, ``names``, ``chains``,
     ``time``, ``force`` and ``band``: :class:`~bayesdamper.inference.stage2.WindowResult`).
 
-    The law is fitted to the windows of :func:`calibration_windows`.
+    The law is fitted to the windows of :func:`calibration_windows`; ``covariates`` (test -> value) of
+    ``covariate_name`` enter the law where they differ between tests.
     """
     results = list(results)
-    use, wins = calibration_windows(results, degree)
-    h = fit_hierarchy(wins, degree=degree, seed=seed, progress=progress)
+    use, wins = calibration_windows(results, degree, covariates)
+    h = fit_hierarchy(wins, degree=degree, seed=seed, progress=progress, covariate_name=covariate_name)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 17]))
     pools = [np.asarray(r.chains, float)[..., [list(r.names).index(n) for n in FLOW_NAMES]].reshape(-1, 4)
              for r in use if all(n in r.names for n in FLOW_NAMES)]

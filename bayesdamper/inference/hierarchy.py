@@ -5,12 +5,14 @@ z_k = (log α_V, log p_R)_k. Three levels:
 
     z_k ~ N(θ_t, Ω)                 windows of one test scatter about the test's parameters (kind of step, ...),
     θ_t ~ N(B x(v_t), Σ)            tests scatter about the population law (test-to-test scatter),
-    x(v) = (1, u, …, u^degree),     u = (v - v_c) / v_s,
+    x(v) = (1, u, …, u^degree[, c]), u = (v - v_c) / v_s,  c = (T - T_c) / T_s,
 
-B a (2, degree + 1) matrix of trend coefficients (degree 1 by default: a straight line in speed of the log
-parameters, the shallow monotone change the paper's Fig. 9 shows); Σ and Ω are 2 x 2 covariances, each an sd per
-parameter [log units] and a correlation. The trend is the drift, Σ the noise between tests, Ω the scatter between
-windows of one test; where no test has two windows Ω and Σ cannot be told apart and Ω is left out (Σ holds both).
+B a matrix of trend coefficients (degree 1 by default: a straight line in speed of the log parameters, the
+shallow monotone change the paper's Fig. 9 shows), c a covariate the records carry (their mean temperature,
+column ``temperature_C``) where every test has one and they differ; Σ and Ω are 2 x 2 covariances, each an sd
+per parameter [log units] and a correlation. The trend is the drift, Σ the noise between tests, Ω the scatter
+between windows of one test; where no test has two windows Ω and Σ cannot be told apart and Ω is left out (Σ
+holds both).
 Priors: flat on B, half-Cauchy(0, 1) on every sd (Gelman 2006's weakly informative prior for a group-level
 scale), uniform correlations.
 
@@ -80,12 +82,15 @@ class WindowDraws:
         Operating speed [m/s].
     draws : ndarray, shape (n_draws, 2)
         Posterior draws of (α_V, p_R) [-, Pa].
+    covariate : float or None
+        The test's value of a covariate the records carry (the mean temperature [°C], say).
     """
 
     id: str
     speed: float
     draws: np.ndarray
     test: str = ""
+    covariate: float | None = None
 
     def summary(self) -> tuple[np.ndarray, np.ndarray]:
         """Mean and covariance of the log draws."""
@@ -138,7 +143,7 @@ class HyperLogPosterior:
         self.design = design                # (T, p) design row of each test
         self.member = np.zeros((len(means), len(design)))
         self.member[np.arange(len(means)), test_index] = 1.0
-        self.p = degree + 1
+        self.p = design.shape[1]
         self.within = within
         self.with_prior = with_prior
 
@@ -216,8 +221,17 @@ class HyperLogPosterior:
         return np.where(np.isfinite(out) & ok, out, -np.inf)
 
 
+def _law_design(speed, covariate, v_c: float, v_s: float, degree: int, cov: dict | None) -> np.ndarray:
+    """Rows x = (1, u, …, u^degree[, c]) with u = (v - v_c) / v_s and c the normalised covariate."""
+    x = _design((np.asarray(speed, float) - v_c) / v_s, degree)
+    if cov is None:
+        return x
+    c = (np.asarray(covariate, float) - cov["c_c"]) / cov["c_s"]
+    return np.column_stack([x, np.broadcast_to(c, x.shape[:1])])
+
+
 def _problem(windows: list[WindowDraws], v_c: float, v_s: float, degree: int, within: bool | None = None,
-             with_prior: bool = True) -> tuple[HyperLogPosterior, np.ndarray, np.ndarray]:
+             with_prior: bool = True, cov: dict | None = None) -> tuple[HyperLogPosterior, np.ndarray, np.ndarray]:
     """The hyper-posterior of windows grouped by test; also each test's speed and its mean window mean."""
     tests = list(dict.fromkeys(w.test or w.id for w in windows))
     index = {t: i for i, t in enumerate(tests)}
@@ -230,8 +244,10 @@ def _problem(windows: list[WindowDraws], v_c: float, v_s: float, degree: int, wi
         within = bool(np.any(counts > 1))
     means = np.array([m for m, _ in summ])
     test_means = np.array([means[t_of == i].mean(axis=0) for i in range(len(tests))])
-    target = HyperLogPosterior(means, np.array([c for _, c in summ]), t_of, _design((speeds - v_c) / v_s, degree),
-                               degree, within, with_prior)
+    covs = (np.array([np.mean([w.covariate for w, k in zip(windows, t_of, strict=True) if k == i])
+                      for i in range(len(tests))]) if cov is not None else None)
+    target = HyperLogPosterior(means, np.array([c for _, c in summ]), t_of,
+                               _law_design(speeds, covs, v_c, v_s, degree, cov), degree, within, with_prior)
     return target, speeds, test_means
 
 
@@ -255,6 +271,8 @@ class HierarchyFit:
     seed : int
     within : bool
         Whether Ω (scatter between windows of one test) is a level of its own.
+    covariate : dict or None
+        ``{"name", "c_c", "c_s", "range"}`` of a covariate in the law (normalised as (c - c_c) / c_s), or None.
     """
 
     draws: np.ndarray
@@ -265,6 +283,19 @@ class HierarchyFit:
     sampling: dict = field(default_factory=dict)
     seed: int = 0
     within: bool = False
+    covariate: dict | None = None
+
+    @property
+    def n_law(self) -> int:
+        """Columns of the law's design: the powers of speed and the covariate."""
+        return self.degree + 1 + (self.covariate is not None)
+
+    def _x(self, speed, covariate=None) -> np.ndarray:
+        c = None
+        if self.covariate is not None:
+            c = self.covariate["c_c"] if covariate is None else covariate
+        return _law_design(np.atleast_1d(np.asarray(speed, float)), c, self.v_c, self.v_s, self.degree,
+                           self.covariate)
 
     @property
     def speed_range(self) -> tuple[float, float]:
@@ -273,29 +304,30 @@ class HierarchyFit:
         return float(min(v)), float(max(v))
 
     def _parts(self):
-        p = self.degree + 1
+        p = self.n_law
         k = 2 * p
         beta = self.draws[:, :k].reshape(-1, 2, p)
         sig = _cov2(self.draws[:, k:k + 2], self.draws[:, k + 2])
         om = _cov2(self.draws[:, k + 3:k + 5], self.draws[:, k + 5]) if self.within else np.zeros_like(sig)
         return beta, sig, om
 
-    def trend(self, speed) -> np.ndarray:
-        """Draws of the population law μ(v) [log units], shape (n_draws, n_speeds, 2)."""
-        u = (np.atleast_1d(np.asarray(speed, float)) - self.v_c) / self.v_s
+    def trend(self, speed, covariate: float | None = None) -> np.ndarray:
+        """Draws of the population law μ(v) [log units], shape (n_draws, n_speeds, 2); at ``covariate`` (default:
+        the calibration's mean) where the law has one."""
         beta, _, _ = self._parts()
-        return np.einsum("ndp,vp->nvd", beta, _design(u, self.degree))
+        return np.einsum("ndp,vp->nvd", beta, self._x(speed, covariate))
 
     def _scatter(self, idx: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         _, sig, om = self._parts()
         chol = np.linalg.cholesky(sig[idx] + om[idx] + 1e-15 * np.eye(2))
         return np.einsum("nij,nj->ni", chol, rng.standard_normal((len(idx), 2)))
 
-    def new_test(self, speed: float, n: int, rng: np.random.Generator) -> np.ndarray:
-        """``n`` draws of the parameters of a window of a new test at ``speed`` [m/s] in physical units, shape
-        (n, 2): the law at that speed plus the scatter between tests and between windows of a test."""
+    def new_test(self, speed: float, n: int, rng: np.random.Generator, covariate: float | None = None) -> np.ndarray:
+        """``n`` draws of the parameters of a window of a new test at ``speed`` [m/s] (and ``covariate``) in
+        physical units, shape (n, 2): the law there plus the scatter between tests and between windows of a
+        test."""
         idx = rng.choice(len(self.draws), size=n, replace=len(self.draws) < n)
-        return np.exp(self.trend([speed])[idx, 0] + self._scatter(idx, rng))
+        return np.exp(self.trend([speed], covariate)[idx, 0] + self._scatter(idx, rng))
 
     def summary(self, credible_mass: float = 0.9) -> dict:
         """The law on a speed grid, its change over the range, the scatters and the convergence (JSON-safe)."""
@@ -333,11 +365,19 @@ class HierarchyFit:
             if self.within:
                 out["parameters"][name]["scatter_within_test_log_sd"] = q(np.sqrt(om[:, j, j]))
         out["scatter_correlation"] = q(sig[:, 0, 1] / np.sqrt(sig[:, 0, 0] * sig[:, 1, 1]))
+        if self.covariate is not None:
+            beta, _, _ = self._parts()
+            out["covariate"] = {
+                "name": self.covariate["name"], "range": self.covariate["range"],
+                "law_at": self.covariate["c_c"],
+                # relative change of the parameter per unit of the covariate (log units per unit)
+                "slope_log_per_unit": {n: q(beta[:, j, -1] / self.covariate["c_s"]) for j, n in enumerate(NAMES)}}
         return out
 
 
 def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0, sampler=None,
-                  progress=None, v_c: float | None = None, v_s: float | None = None) -> HierarchyFit:
+                  progress=None, v_c: float | None = None, v_s: float | None = None,
+                  covariate_name: str | None = None, covariate: dict | None = None) -> HierarchyFit:
     """Fit the drift law to per-window posteriors.
 
     Parameters
@@ -352,6 +392,11 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
         Default: 3 ensembles of :data:`N_WALKERS` walkers, the "de+laplace" move, checks every 250 steps.
     v_c, v_s : float, optional
         Centre and scale of the speed [m/s] (default: mean and sd of the tests' speeds).
+    covariate_name : str, optional
+        Name of the windows' ``covariate`` (e.g. ``"temperature_C"``): a term of the law where every window has a
+        value and the tests' values differ (else left out).
+    covariate : dict, optional
+        Its normalisation ``{"name", "c_c", "c_s", "range"}`` (default: from the tests' values).
 
     Raises
     ------
@@ -370,10 +415,17 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
                          f"speeds (got {len(tests)} at {n_speeds})")
     v_c = float(np.mean(speeds)) if v_c is None else v_c
     v_s = (float(np.std(speeds)) or max(abs(v_c), 1e-9)) if v_s is None else v_s
-    target, v, means = _problem(windows, v_c, v_s, degree)
-    design = _design((v - v_c) / v_s, degree)
-    coef, *_ = np.linalg.lstsq(design, means, rcond=None)
-    sd0 = np.clip((means - design @ coef).std(axis=0), 0.02, 1.0)
+    if covariate is None and covariate_name and all(w.covariate is not None for w in windows):
+        per_test: dict[str, list[float]] = {}
+        for w in windows:
+            per_test.setdefault(w.test or w.id, []).append(float(w.covariate))
+        c = np.array([np.mean(x) for x in per_test.values()])
+        if np.ptp(c) > 0 and len(tests) >= degree + 3:  # one more test than the law without it needs
+            covariate = {"name": covariate_name, "c_c": float(np.mean(c)), "c_s": float(np.std(c)),
+                         "range": [float(c.min()), float(c.max())]}
+    target, v, means = _problem(windows, v_c, v_s, degree, cov=covariate)
+    coef, *_ = np.linalg.lstsq(target.design, means, rcond=None)
+    sd0 = np.clip((means - target.design @ coef).std(axis=0), 0.02, 1.0)
     x0 = np.r_[sd0, 0.0, (0.5 * sd0) if target.within else [], [0.0] if target.within else []]
     n_cov = 2 if target.within else 1
     lower = np.array([SCATTER_BOUNDS[0], SCATTER_BOUNDS[0], -RHO_BOUND] * n_cov)
@@ -401,7 +453,7 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
                 "sampled": "the scatter parameters (emcee); the trend from its Gaussian conditional per draw"}
     return HierarchyFit(flat, degree, v_c, v_s,
                         [{"id": w.id, "test": w.test or w.id, "speed_m_s": float(w.speed)} for w in windows],
-                        sampling, seed, target.within)
+                        sampling, seed, target.within, covariate)
 
 
 def leave_out(fit: HierarchyFit, windows: list[WindowDraws], test: str, *, seed: int = 0) -> HierarchyFit:
@@ -415,7 +467,8 @@ def leave_out(fit: HierarchyFit, windows: list[WindowDraws], test: str, *, seed:
     rng = np.random.default_rng(np.random.SeedSequence([seed, 19]))
     pick = rng.choice(len(fit.draws), size=min(N_LEAVE_OUT_DRAWS, len(fit.draws)), replace=False)
     x = fit.draws[pick]
-    like, _, _ = _problem(out, fit.v_c, fit.v_s, fit.degree, within=fit.within, with_prior=False)
+    like, _, _ = _problem(out, fit.v_c, fit.v_s, fit.degree, within=fit.within, with_prior=False,
+                          cov=fit.covariate)
     logw = -np.concatenate([like.marginal_loglike(x[i:i + 512]) for i in range(0, len(x), 512)])
     logw = np.where(np.isfinite(logw), logw, -np.inf)
     w = np.exp(logw - np.max(logw))
@@ -428,7 +481,8 @@ def leave_out(fit: HierarchyFit, windows: list[WindowDraws], test: str, *, seed:
         idx = np.minimum(np.searchsorted(np.cumsum(w), pos), len(w) - 1)
         return HierarchyFit(x[idx], fit.degree, fit.v_c, fit.v_s, kept,
                             {"method": f"importance re-weighting (ESS {ess:.0f})", "ess": ess, "converged": True},
-                            fit.seed, fit.within)
-    refit = fit_hierarchy(rest, degree=fit.degree, seed=fit.seed, v_c=fit.v_c, v_s=fit.v_s)
+                            fit.seed, fit.within, fit.covariate)
+    refit = fit_hierarchy(rest, degree=fit.degree, seed=fit.seed, v_c=fit.v_c, v_s=fit.v_s,
+                          covariate=fit.covariate)
     refit.sampling["method"] = f"re-fitted (importance ESS {ess:.0f})"
     return refit

@@ -8,7 +8,8 @@ A data set is a folder holding
   coefficients of eq. (4) (``C_L12``, ``C_Q12``, ``C_L21``, ``C_Q21``) and an optional ``[condition]`` table
   (:mod:`bayesdamper.io.damper_file`);
 * one CSV file per test, with a header naming the columns ``time_s``, ``displacement_m`` and
-  ``force_N`` (any order; other columns are ignored but an optional measured velocity ``velocity_m_s``),
+  ``force_N`` (any order; other columns are ignored but an optional measured velocity ``velocity_m_s`` and an
+  optional temperature ``temperature_C``),
   sampled at a constant rate, in SI units.
 
 Every problem found raises :class:`~bayesdamper.core.errors.DataError` with a one-line message
@@ -37,6 +38,8 @@ __all__ = ["COLUMNS", "DAMPER_FILE", "VELOCITY_COLUMN", "Dataset", "TestRecord",
 COLUMNS = ("time_s", "displacement_m", "force_N")
 #: Optional CSV column: a measured piston velocity [m/s] (used by the input's reconstruction where it helps).
 VELOCITY_COLUMN = "velocity_m_s"
+#: Optional CSV column: a measured temperature [°C] (its mean per test is a covariate of the drift law).
+TEMPERATURE_COLUMN = "temperature_C"
 
 #: Relative deviation of one sampling interval from the median interval still accepted as jitter [-].
 SAMPLE_RATE_JITTER = 0.05
@@ -81,6 +84,9 @@ class TestRecord:
         SHA-256 of the file's bytes (hex).
     velocity : ndarray, shape (n_samples,), or None
         Measured piston velocity [m/s] (column ``velocity_m_s``), if the file has one. Read-only.
+    temperature : ndarray, shape (n_samples,), or None
+        Measured temperature [°C] (column ``temperature_C``), if the file has one: a covariate of the drift law.
+        Read-only.
     """
 
     __test__ = False  # not a pytest test class despite its name
@@ -92,6 +98,7 @@ class TestRecord:
     force: np.ndarray
     sha256: str
     velocity: np.ndarray | None = None
+    temperature: np.ndarray | None = None
 
     @property
     def sample_rate(self) -> float:
@@ -347,6 +354,7 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
         force=_readonly(force),
         sha256=sha,
         velocity=_read_velocity(path, lines, time.size),
+        temperature=_read_optional(path, lines, time.size, TEMPERATURE_COLUMN),
     )
 
 
@@ -387,20 +395,26 @@ def load_history(path: str | Path) -> TestRecord:
     _check_columns(path, lines, time, y, np.zeros_like(time), None)
     return TestRecord(name=path.stem, path=path, time=_readonly(time), displacement=_readonly(y),
                       force=_readonly(np.full(time.size, np.nan)), sha256=sha,
-                      velocity=_read_velocity(path, lines, time.size))
+                      velocity=_read_velocity(path, lines, time.size),
+                      temperature=_read_optional(path, lines, time.size, TEMPERATURE_COLUMN))
 
 
 def _read_velocity(path: Path, lines: list[str], n: int) -> np.ndarray | None:
     """The optional measured velocity column [m/s], or None; a column that is not all finite numbers is an error."""
+    return _read_optional(path, lines, n, VELOCITY_COLUMN)
+
+
+def _read_optional(path: Path, lines: list[str], n: int, column: str) -> np.ndarray | None:
+    """An optional numeric column, or None; a column that is not all finite numbers is an error."""
     names = [c.strip().strip('"').strip("'").strip() for c in lines[0].split(",")]
-    if VELOCITY_COLUMN not in names:
+    if column not in names:
         return None
     try:
-        v = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=(names.index(VELOCITY_COLUMN),), ndmin=1)
+        v = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=(names.index(column),), ndmin=1)
     except (ValueError, TypeError, OverflowError, IndexError):
-        raise DataError(f"{path}: column {VELOCITY_COLUMN} holds something that is not a number") from None
+        raise DataError(f"{path}: column {column} holds something that is not a number") from None
     if v.size != n or not np.all(np.isfinite(v)):
-        raise DataError(f"{path}: column {VELOCITY_COLUMN} must hold a finite number in every row")
+        raise DataError(f"{path}: column {column} must hold a finite number in every row")
     return _readonly(v)
 
 

@@ -36,6 +36,14 @@ def law_table(law: Mapping | None, mass: float) -> str:
                      _pct_interval(p.get("scatter_between_tests_log_sd"), fmt=".0f"),
                      _pct_interval(p.get("scatter_within_test_log_sd"), fmt=".0f"),
                      "yes" if p.get("drift_credible") else "no"])
+    cov = law.get("covariate")
+    cov_text = ""
+    if cov:
+        sl = cov.get("slope_log_per_unit") or {}
+        cov_text = (f"<p>Covariate {_e(cov.get('name'))} (the tests' means, {_num(cov['range'][0], '.4g')}–"
+                    f"{_num(cov['range'][1], '.4g')}; the law above is drawn at {_num(cov.get('law_at'), '.4g')}): "
+                    + "; ".join(f"{_e(_LABEL.get(n, n))} {_pct_interval(sl.get(n), fmt='+.2f')} per unit"
+                                for n in ("alpha_V", "p_R_Pa")) + ".</p>")
     sm = law.get("sampling") or {}
     corr = law.get("scatter_correlation")
     return (f"<p>The drift law ({_e(law.get('method', ''))}), fitted to {_num(law.get('n_windows'), 'd')} windows of "
@@ -49,6 +57,7 @@ def law_table(law: Mapping | None, mass: float) -> str:
             + _table(["parameter", "law at slowest", "law at fastest", "change over the range (trend)",
                       "scatter between tests", "scatter between windows of a test", "drift credible"],
                      rows, left=1)
+            + cov_text
             + f"<p class=\"note\">Hyper-posterior: {'converged' if sm.get('converged') else 'NOT converged'} "
               f"(R-hat {_num(sm.get('rhat_max'), '.3f')}, bulk ESS {_num(sm.get('ess_bulk_min'), '.0f')}, "
               f"τ {_num(sm.get('tau_max'), '.1f')} steps)"

@@ -209,7 +209,8 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                       "Δp (flat prior); the noise of each window is estimated from its least-squares residual "
                       "away from the excitation's band and harmonics", "propagated": True, "coupling": "joint"}
     _, summary["drift_model"] = write_calibration(out_dir / CALIBRATION_FILE, results, ds.damper, None, seed=seed,
-                                               credible_mass=credible_mass, provenance=prov, progress=progress)
+                                               credible_mass=credible_mass, provenance=prov, progress=progress,
+                                               records=ds.records)
     if figures:
         from bayesdamper.report.figures import write_identify_figures
 

@@ -22,6 +22,7 @@ import numpy as np
 
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.inference.calibration import QUANTILES, Calibration
+from bayesdamper.io.dataset import TEMPERATURE_COLUMN
 from bayesdamper.io.outputs import atomic_write_bytes, atomic_write_json, versions
 
 #: The calibration of eq. (7) (``identify``, and ``diagnose`` for its baseline).
@@ -111,12 +112,22 @@ def process_map(workers: int):
     return lambda f, tasks: run_tasks(f, tasks, workers, lambda *a: None)
 
 
+def record_covariates(records) -> tuple[dict | None, str | None]:
+    """The drift law's covariate of a data set's records: each record's mean temperature, where every record has
+    a ``temperature_C`` column; else None."""
+    if records and all(getattr(r, "temperature", None) is not None for r in records):
+        return {r.name: float(np.mean(r.temperature)) for r in records}, TEMPERATURE_COLUMN
+    return None, None
+
+
 def predict_history(cal: Calibration, time: np.ndarray, drive, speed: float, start_velocity: float, *,
                     measured: np.ndarray | None = None, n_draws: int = N_DRAWS, seed: int = 0,
-                    workers: int = 1) -> Prediction:
-    """Run a calibration on an input: draws of a new test at ``speed``, simulated, plus measurement noise."""
+                    workers: int = 1, covariate: float | None = None) -> Prediction:
+    """Run a calibration on an input: draws of a new test at ``speed`` (and ``covariate``, where the law has one;
+    default its calibrated mean), simulated, plus measurement noise."""
     time = np.asarray(time, float)
-    forces, _, failed = cal.simulate(time, drive, speed, start_velocity, n_draws, seed, process_map(workers))
+    forces, _, failed = cal.simulate(time, drive, speed, start_velocity, n_draws, seed, process_map(workers),
+                                     covariate)
     if len(forces) == 0:
         raise DataError(f"every one of the {n_draws} draws failed to solve on this history")
     rate = 1.0 / float(np.median(np.diff(time))) if time.size > 1 else 0.0
@@ -128,6 +139,13 @@ def predict_history(cal: Calibration, time: np.ndarray, drive, speed: float, sta
             "start_velocity_m_s": start_velocity, "seed": seed,
             "noise": {"sigma_N": cal.noise_sigma_N, "phi_at_calibration_rate": cal.noise_phi,
                       "calibration_rate_Hz": cal.sample_rate_Hz}}
+    law_cov = cal.hierarchy.covariate
+    if law_cov is not None:
+        value = law_cov["c_c"] if covariate is None else float(covariate)
+        c0, c1 = law_cov["range"]
+        info["covariate"] = {"name": law_cov["name"], "value": value, "calibrated_range": [c0, c1],
+                             "source": "the calibration's mean" if covariate is None else "the history",
+                             "extrapolated": not c0 <= value <= c1}
     if measured is not None and np.all(np.isfinite(measured)):
         info.update(scores(measured, q))
     return Prediction(time, np.asarray(drive.displacement(time), float), q,
@@ -200,12 +218,23 @@ def predict(results: str | Path, input: str | Path, out: str | Path | None = Non
         out_dir = Path(out)
         if out_dir.exists() and not out_dir.is_dir():
             raise DataError(f"{out_dir}: exists and is not a folder")
+    covariate = None
+    if cal.hierarchy.covariate is not None and cal.hierarchy.covariate["name"] == TEMPERATURE_COLUMN \
+            and record.temperature is not None:
+        covariate = float(np.mean(record.temperature))
     pred = predict_history(cal, record.time, drive, speed, v0, measured=record.force, n_draws=n_draws, seed=seed,
-                           workers=workers)
+                           workers=workers, covariate=covariate)
     lo, hi = pred.info["calibrated_speed_range_m_s"]
     if pred.info["extrapolated"] and not quiet:
         print(f"bayesdamper predict: {record.path}: operating speed {1e3 * speed:.3g} mm/s is outside the calibrated "
               f"range {1e3 * lo:.3g}-{1e3 * hi:.3g} mm/s: the drift law is extrapolated", file=sys.stderr)
+    cov = pred.info.get("covariate")
+    if cov and not quiet and (cov["extrapolated"] or covariate is None):
+        c0, c1 = cov["calibrated_range"]
+        print(f"bayesdamper predict: {record.path}: {cov['name']} {cov['value']:.4g} ("
+              + ("the calibration's mean: the history has no such column" if covariate is None else
+                 f"outside the calibrated range {c0:.4g}-{c1:.4g}: the drift law is extrapolated") + ")",
+              file=sys.stderr)
     pred.info.update({"input": str(record.path), "input_sha256": record.sha256, "calibration": str(path),
                       "calibration_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
                       "reconstruction": recon, "versions": versions(), "calibration_provenance": cal.provenance})
@@ -227,7 +256,7 @@ def predict(results: str | Path, input: str | Path, out: str | Path | None = Non
 
 
 def write_calibration(path: Path, results: list, damper, effects: dict | None, *, seed: int, credible_mass: float,
-                      provenance: dict, progress=None) -> tuple[Calibration | None, dict]:
+                      provenance: dict, progress=None, records=()) -> tuple[Calibration | None, dict]:
     """Fit the calibration of ``results`` (:func:`~bayesdamper.inference.calibration.calibrate`), write it to
     ``path`` and return it with the drift law's summary for the results' JSON; where there are too few windows or
     speeds for a law, nothing is written, no calibration is returned and the summary says why."""
@@ -235,7 +264,9 @@ def write_calibration(path: Path, results: list, damper, effects: dict | None, *
 
     t0 = time.perf_counter()
     try:
-        cal = calibrate(results, damper, effects, seed=seed, provenance=provenance)
+        covariates, name = record_covariates(list(records))
+        cal = calibrate(results, damper, effects, seed=seed, provenance=provenance, covariates=covariates,
+                        covariate_name=name)
     except ValueError as err:
         return None, {"fitted": False, "reason": str(err)}
     cal.save(path)
@@ -271,11 +302,11 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
         final_path.unlink()
     for key, label, path, results, eff in jobs:
         cal, summ = write_calibration(path, results, ds.damper, eff, seed=seed, credible_mass=credible_mass,
-                                      provenance=provenance, progress=progress)
+                                      provenance=provenance, progress=progress, records=ds.records)
         out[f"drift_model_{key}"] = summ
         if cal is None:
             continue
-        _, wins = calibration_windows(results)
+        _, wins = calibration_windows(results, covariates=record_covariates(ds.records)[0])
         t0 = time.perf_counter()
         rows = leave_one_test_out(cal, wins, windows, records, seed=seed, workers=workers)
         check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
@@ -324,8 +355,10 @@ def leave_one_test_out(cal: Calibration, windows_draws: list, windows: list, rec
         drive = ws[0].drive
         speed = float(np.median([w.velocity for w in ws]))
         v0 = float(drive.velocity(rec.time[:1])[0])
+        cov = float(np.mean(rec.temperature)) if cal.hierarchy.covariate is not None \
+            and getattr(rec, "temperature", None) is not None else None
         p = predict_history(replace(cal, hierarchy=law), rec.time, drive, speed, v0, measured=rec.force,
-                            n_draws=n_draws, seed=seed, workers=workers)
+                            n_draws=n_draws, seed=seed, workers=workers, covariate=cov)
         lo, hi = law.speed_range
         rows.append({"test": test, "speed_m_s": speed, "n_windows_left_out": len(ids),
                      "law": law.sampling.get("method", "re-fitted"), "extrapolated": not lo <= speed <= hi,
