@@ -153,11 +153,18 @@ def test_drift_law_bands_hold_the_true_law(identified, capsys):
     """The issue's two rules, on one seeded data set.
 
     * The 90 % band of the population law holds the true law at >= 85 % of the 41 grid speeds, per parameter (the
-      issue's number: a calibrated pointwise 90 % band misses a straight-line truth mostly near one end of the range,
-      so on most data sets the share is far above 85 %).
+      issue's number).
     * The true τ of each parameter lies inside the 90 % interval of the sd between tests. The model estimates the
       sd of the population the tests are drawn from, so it is compared with τ, not with the realised sd of the nine
       drawn e (printed alongside).
+
+    Both are random events of the nine drawn tests, not margins: a pointwise 90 % band misses a whole stretch of
+    speeds when the drawn e happen to lean with speed, and a 90 % interval misses τ one time in ten. Measured with the
+    law fit alone on 44 seeds (window posteriors emulated as narrow Gaussians about each test's truth, which reproduced
+    the full runs of seeds 1-4): the band held the true law at all 41 speeds in 39 (α_V) and 34 (p_R) of 44 sets, at
+    < 85 % in 4 and 10 (mean share 0.96 and 0.90, nominal 0.90); τ fell outside its interval in 5 and 7 sets; at least
+    one of the four checks failed in 22 of 44. So a fail here on a new seed or a changed sampler is not by itself a
+    defect; SEED was fixed before the first run and passes (all shares 100 %, τ inside both intervals).
     """
     truth, e, summary, wall = identified
     drift = summary["drift_model"]
@@ -170,3 +177,32 @@ def test_drift_law_bands_hold_the_true_law(identified, capsys):
         assert _coverage(drift, name) >= MIN_COVERAGE, name
         sc = drift["parameters"][name]["scatter_between_tests_log_sd"]
         assert sc["lo"] <= TAU[j] <= sc["hi"], (name, TAU[j], sc)
+
+
+@pytest.mark.slow
+def test_the_pipeline_law_is_the_law_of_the_true_test_parameters(identified, capsys):
+    """The robust half of the check: the law identify fitted from its windows' posteriors agrees with the law fitted
+    to the tests' true parameters themselves (each of a test's three windows a narrow posterior, 1 % sd, about the
+    truth): what the law says when every window is identified perfectly. Its median within a quarter of that law's
+    90 % band at every grid speed (the windows' own errors are about 1 %, the band's width is set by the scatter of
+    nine tests, some 20-40 %; a biased window identification or a wrong grouping of windows into tests moves the
+    law by about a band)."""
+    from bayesdamper.inference.hierarchy import WindowDraws, fit_hierarchy
+
+    truth, _, summary, _ = identified
+    drift = summary["drift_model"]
+    rng = np.random.default_rng(0)
+    wins = [WindowDraws(f"{test}_s{k}", float(v), np.exp(np.log(truth[test]) + 0.01 * rng.standard_normal((400, 2))),
+                        test)
+            for v, test in ((v, _name(v)) for v in SPEEDS) for k in range(3)]
+    oracle = fit_hierarchy(wins, seed=0).summary(0.9)
+    rows = []
+    for name in NAMES:
+        got = np.log(np.asarray(drift["parameters"][name]["law"]["median"]))
+        ref = oracle["parameters"][name]["law"]
+        mid = np.log(np.asarray(ref["median"]))
+        width = np.log(np.asarray(ref["hi"])) - np.log(np.asarray(ref["lo"]))
+        rows.append(f"  {name}: |pipeline - oracle| / oracle band width, max {np.max(np.abs(got - mid) / width):.3f}")
+        assert np.all(np.abs(got - mid) <= 0.25 * width), name
+    with capsys.disabled():
+        print("\n[drift law: pipeline against the law of the true test parameters]\n" + "\n".join(rows))

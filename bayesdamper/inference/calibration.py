@@ -88,10 +88,8 @@ class Calibration:
 
     @classmethod
     def load(cls, path: Path) -> Calibration:
-        """Read what :meth:`save` wrote."""
-        from bayesdamper.inference.posterior import read_draws
-
-        draws, const, attrs = read_draws(Path(path))
+        """Read what :meth:`save` wrote (with h5netcdf: importing arviz alone would cost seconds of a prediction)."""
+        draws, const, attrs = _read_netcdf_draws(Path(path))
         x = np.column_stack([draws[f"x{i}"] for i in range(len(draws))])
         h = HierarchyFit(x, int(attrs["degree"]), float(attrs["v_c"]), float(attrs["v_s"]), attrs["windows"],
                          attrs["sampling"], int(attrs["hierarchy_seed"]), bool(attrs["within"]),
@@ -111,7 +109,10 @@ class Calibration:
         flow = self.flow_draws[rng.choice(len(self.flow_draws), n_draws)]
         theta = np.column_stack([dyn, flow])
         tasks = [(self, np.asarray(time, float), drive, float(start_velocity), th) for th in theta]
-        out = map_fn(simulate_task, tasks) if map_fn is not None else [simulate_task(t) for t in tasks]
+        if map_fn is None or len(tasks) < 2:
+            out = [simulate_task(t) for t in tasks]
+        else:  # the first solve here loads (or compiles) the kernel once: forked workers inherit it
+            out = [simulate_task(tasks[0])] + list(map_fn(simulate_task, tasks[1:]))
         ok = [i for i, (f, good) in enumerate(out) if good]
         forces = np.array([out[i][0] for i in ok]) if ok else np.zeros((0, len(time)))
         return forces, theta[ok], n_draws - len(ok)
@@ -133,6 +134,31 @@ class Calibration:
         if n_times > 1:
             out[:, 1:] = lfilter([1.0], [1.0, -phi], e[:, 1:], axis=1, zi=(phi * x0)[:, None])[0]
         return out
+
+
+def _read_netcdf_draws(path: Path) -> tuple[dict, dict, dict]:
+    """The draws, constant data and attributes (JSON values decoded) of a file that
+    :func:`~bayesdamper.inference.posterior.write_draws` wrote: ArviZ's NetCDF layout, groups ``posterior``
+    (variables of shape (chain, draw)) and ``constant_data``."""
+    import json
+
+    import h5netcdf
+
+    def decode(v):
+        v = v.decode() if isinstance(v, bytes) else v
+        try:
+            return json.loads(v) if isinstance(v, str) else v
+        except ValueError:
+            return v
+
+    with h5netcdf.File(str(path), "r") as f:
+        post = f.groups["posterior"]
+        draws = {k: np.asarray(v[...], float).reshape(-1) for k, v in post.variables.items()
+                 if k not in ("chain", "draw")}
+        const = {k: np.asarray(v[...]) for k, v in f.groups["constant_data"].variables.items()
+                 if not k.endswith(tuple(f"_dim_{i}" for i in range(4)))}
+        attrs = {k: decode(v) for k, v in post.attrs.items()}
+    return draws, const, attrs
 
 
 def _steady_dp(velocity: float, damper: DamperConstants, flow: np.ndarray) -> float:

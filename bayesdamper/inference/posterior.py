@@ -139,12 +139,3 @@ def write_draws(path: Path, draws: dict[str, np.ndarray], constant: dict[str, np
         idata[group].attrs.update(flat_attrs)
     write_netcdf(idata, path)
 
-
-def read_draws(path: Path) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict]:
-    """What :func:`write_draws` stored: the draws (flattened over chains), the constant data and the attributes
-    (JSON values decoded)."""
-    idata = read_netcdf(path)
-    draws = {str(k): np.asarray(v.values, float).reshape(-1) for k, v in idata.posterior.data_vars.items()}
-    const = ({str(k): np.asarray(v.values) for k, v in idata.constant_data.data_vars.items()}
-             if "constant_data" in idata.groups() else {})
-    return draws, const, provenance(idata)

@@ -239,8 +239,8 @@ def figure9_drift(entries: Sequence[Mapping], drift: Mapping | None = None, cred
 
         handles += [Line2D([], [], color="k", lw=1.2, label="drift law, posterior median"),
                     Patch(color="0.5", alpha=0.35, label=f"law: 50 % and {_pct(credible_mass)} bands"),
-                    Line2D([], [], color="k", lw=0.8, ls=":", label=f"a new test ({_pct(credible_mass)}): law + "
-                                                                    "scatter between tests")]
+                    Line2D([], [], color="k", lw=0.8, ls=":",
+                           label=f"a new test ({_pct(credible_mass)}): law + scatter between and within tests")]
     elif have_line:
         handles.append(Line2D([], [], color="k", lw=1.2, label="trend, posterior median"))
     fig.legend(handles=handles, loc="outside lower center", ncols=min(4, len(handles)), fontsize=8,
