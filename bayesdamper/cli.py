@@ -204,14 +204,16 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("predict", help="run a calibrated damper on a displacement history, with bands",
                        description="Drive the damper calibrated in RESULTS (eq. (7), or eq. (7) with the effects "
                                    "diagnose selected) by a displacement history: the force's predictive median "
-                                   "and 50 %% / 90 %% bands from the drift law and the measurement noise, as CSV, JSON "
+                                   "and 50 % / 90 % bands from the drift law and the measurement noise, as CSV, JSON "
                                    "and a figure. A history whose operating speed lies outside the calibrated range "
                                    "is predicted with the law extrapolated, and the command says so.")
     r.add_argument("results", help="output folder of bayesdamper identify, diagnose or report")
     r.add_argument("--input", required=True, metavar="FILE.csv",
-                   help="CSV with time_s [s] and displacement_m [m] at a constant rate; optional force_N [N] "
-                        "(the measured force: the prediction is scored against it) and velocity_m_s [m/s]")
-    r.add_argument("--out", required=True, help="output folder for prediction.csv, prediction.json, figures/")
+                   help="(required) CSV with time_s [s] and displacement_m [m] at a constant rate; optional "
+                        "force_N [N] (the measured force: the prediction is scored against it), velocity_m_s [m/s] and "
+                        "temperature_C [°C] (the drift law's covariate, where it has one)")
+    r.add_argument("--out", required=True,
+                   help="output folder (required) for prediction.csv, prediction.json, figures/")
     r.add_argument("--draws", type=int, default=200, help="predictive draws [-] (default: %(default)s)")
     r.add_argument("--model", default="auto", choices=["auto", "final", "baseline"],
                    help="final: with the diagnosed effects; baseline: eq. (7); auto: final where diagnose "

@@ -147,7 +147,7 @@ def test_help_describes_the_tool_not_the_source_file():
     assert proc.returncode == 0, proc.stderr
     assert "Identify liquid-damper models" in proc.stdout
     assert "No logic lives here" not in proc.stdout
-    for command in ("check", "simulate", "identify", "report", "diagnose"):
+    for command in ("check", "simulate", "identify", "report", "diagnose", "predict"):
         assert command in proc.stdout
     assert "examples:" in proc.stdout
 

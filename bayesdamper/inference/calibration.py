@@ -31,6 +31,8 @@ FLOW_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
 N_FLOW_DRAWS = 400
 #: Quantiles of a prediction: the 90 % band, the 50 % band and the median.
 QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
+#: Chunks of draws a prediction's solves are split into (each a task of the process pool).
+CHUNKS = 8
 #: Largest |φ| of the noise's AR(1) (a unit root would make the stationary variance infinite).
 MAX_PHI = 0.999
 
@@ -108,11 +110,15 @@ class Calibration:
         dyn = self.hierarchy.new_test(speed, n_draws, rng, covariate)
         flow = self.flow_draws[rng.choice(len(self.flow_draws), n_draws)]
         theta = np.column_stack([dyn, flow])
-        tasks = [(self, np.asarray(time, float), drive, float(start_velocity), th) for th in theta]
+        time = np.asarray(time, float)
+        # one problem per chunk of draws: the input (some MB for a long history) is built and sent once per chunk
+        chunks = [theta[:1]] + [c for c in np.array_split(theta[1:], min(CHUNKS, max(len(theta) - 1, 1))) if len(c)]
+        tasks = [(self, time, drive, float(start_velocity), c) for c in chunks]
         if map_fn is None or len(tasks) < 2:
-            out = [simulate_task(t) for t in tasks]
-        else:  # the first solve here loads (or compiles) the kernel once: forked workers inherit it
-            out = [simulate_task(tasks[0])] + list(map_fn(simulate_task, tasks[1:]))
+            parts = [simulate_task(t) for t in tasks]
+        else:  # the first chunk (one draw) here loads or compiles the kernel once: forked workers inherit it
+            parts = [simulate_task(tasks[0])] + list(map_fn(simulate_task, tasks[1:]))
+        out = [r for part in parts for r in part]
         ok = [i for i, (f, good) in enumerate(out) if good]
         forces = np.array([out[i][0] for i in ok]) if ok else np.zeros((0, len(time)))
         return forces, theta[ok], n_draws - len(ok)
@@ -169,9 +175,10 @@ def _steady_dp(velocity: float, damper: DamperConstants, flow: np.ndarray) -> fl
     return float(pressure_drop(damper.piston_area * velocity, fc))
 
 
-def simulate_task(task) -> tuple[np.ndarray | None, bool]:
-    """One draw's solve: ``(calibration, time, drive, start velocity, θ)`` -> (force [N], success)."""
-    cal, time, drive, v0, th = task
+def simulate_task(task) -> list[tuple[np.ndarray | None, bool]]:
+    """The solves of a chunk of draws: ``(calibration, time, drive, start velocity, θ rows)`` -> per row (force [N],
+    success)."""
+    cal, time, drive, v0, thetas = task
     from bayesdamper.inference.joint import JointProblem, StageOnePrior
     from bayesdamper.inference.noise import NoiseEstimate
     from bayesdamper.physics.with_effects import effect_argument
@@ -181,12 +188,16 @@ def simulate_task(task) -> tuple[np.ndarray | None, bool]:
     jp = JointProblem("predict", time, np.zeros(time.size), np.zeros(0), np.zeros(0), float(time[0]),
                       drive.window(float(time[0]), float(time[-1])), 0.0, cal.damper, prior, effects=eff,
                       record_drive=drive if eff is not None else None)
-    x = np.r_[math.log(th[0]), math.log(th[1]), _steady_dp(v0, cal.damper, th[2:6]), th[2:6]]
-    try:
-        f, ok = jp.simulate_window(x)
-    except (ValueError, FloatingPointError, ZeroDivisionError):
-        return None, False
-    return f, bool(ok and np.all(np.isfinite(f)))
+    out = []
+    for th in thetas:
+        x = np.r_[math.log(th[0]), math.log(th[1]), _steady_dp(v0, cal.damper, th[2:6]), th[2:6]]
+        try:
+            f, ok = jp.simulate_window(x)
+        except (ValueError, FloatingPointError, ZeroDivisionError):
+            out.append((None, False))
+            continue
+        out.append((f, bool(ok and np.all(np.isfinite(f)))))
+    return out
 
 
 def ar1_of(residuals: list[np.ndarray]) -> tuple[float, float]:
