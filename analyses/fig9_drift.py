@@ -1,4 +1,4 @@
-"""Figure 9: identified p_R and 100/α_V of rig-A against piston speed, with the drift trend.
+"""Figure 9: identified p_R and 100/α_V of rig-A against piston speed, with the drift law.
 
 Runs the ``identify`` workflow (:func:`bayesdamper.run.identify.run_identify`, figures off) into
 ``<out>/identify/`` (its ``summary.json`` and posteriors), then draws ``figure9_drift.{png,pdf}`` from the
@@ -27,11 +27,12 @@ def main(argv: list[str] | None = None) -> None:
                                      workers=args.workers, max_steps=max_steps, only=only, figures=False,
                                      force=True)  # the identify folder is this script's scratch space
     fig = paper_figures.figure9_drift(summary["segments"], summary["drift"] or None, summary["credible_mass"],
-                              title=f"data set {summary['dataset']!r}")
+                                      title=f"data set {summary['dataset']!r}", law=summary.get("drift_model"))
     paths = save_figure(fig, args.out / "figure9_drift")
     atomic_write_json(args.out / "drift.json", {"dataset": summary["dataset"], "quick": args.quick,
                                                 "credible_mass": summary["credible_mass"],
-                                                "drift": summary["drift"]})
+                                                "drift": summary["drift"],
+                                                "drift_model": summary.get("drift_model")})
     for name, d in summary["drift"].items():
         s = d["slope_per_m_s"]
         print(f"  {name}: slope {s['median']:.4g} per m/s [{s['lo']:.4g}, {s['hi']:.4g}], "
