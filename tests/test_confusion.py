@@ -100,8 +100,10 @@ def test_confusion_on_reference_data(case, tmp_path):
     assert len(check) == (2 if d["selected"] else 1)
     for m in check.values():
         assert {r["test"] for r in m["rows"]} == {w["test"] for w in d["windows"]}
-        assert all(0.0 <= r["coverage_90"] <= 1.0 and r["failed_solves"] == 0 for r in m["rows"])
-    print("PREDICTION-CHECK", json.dumps({k: {q: m[q] for q in ("coverage_90", "coverage_50", "J_median")}
+        for r in m["rows"]:  # scored, or it says why not (too few tests left for a law, every solve failed)
+            assert 0.0 <= r["coverage_90"] <= 1.0 if "coverage_90" in r else \
+                (r["law"].startswith("none: ") or "failed" in r), r
+    print("PREDICTION-CHECK", json.dumps({k: {q: m.get(q) for q in ("coverage_90", "coverage_50", "J_median")}
                                           for k, m in check.items()}))
     if not effects:
         assert named <= {"two-state physics"}, row  # the control gets no rig effect

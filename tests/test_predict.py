@@ -22,6 +22,7 @@ import bayesdamper as bd
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
 from bayesdamper.inference.calibration import Calibration
 from bayesdamper.inference.hierarchy import HierarchyFit
+from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.io.dataset import load_history
 from bayesdamper.run.predict import history_drive, predict_history
 
@@ -227,3 +228,41 @@ def test_a_temperature_covariate_is_read_from_the_history(tmp_path):
     med = {t: np.loadtxt((tmp_path / f"p{t}" / "prediction.csv").read_text().splitlines()[1:], delimiter=",")[:, 2]
            for t in (None, 90.0)}
     assert np.max(np.abs(med[90.0] - med[None])) > 20.0  # p_R e^0.5 higher at 90 °C moves the transients
+
+
+def test_leave_one_test_out_scores_each_test_or_says_why_not(tmp_path, monkeypatch):
+    """The check on a three-test calibration: a test is scored where re-weighting leaves enough draws; where it does
+    not (here forced: the ESS floor set out of reach) the re-fit of two tests cannot make a law, and the test's row
+    says so instead of stopping the diagnosis."""
+    from types import SimpleNamespace
+
+    import bayesdamper.inference.hierarchy as hierarchy
+    from bayesdamper.inference.hierarchy import WindowDraws, fit_hierarchy
+    from bayesdamper.run.predict import leave_one_test_out
+
+    rng = np.random.default_rng(3)
+    speeds = {"a": 6e-4, "b": 1e-3, "c": 1.4e-3}
+    wins, windows, records = [], [], {}
+    for test, v in speeds.items():
+        a, p = _law(v)
+        f = v / (2e-3 * 2 * np.pi)
+        rec = load_history(_sine_history(tmp_path / f"{test}.csv", frequency=f, duration=1.2 / f, rate=50.0,
+                                         alpha_v=a, p_r=p, seed=1))
+        drive, *_ = history_drive(rec)
+        records[test] = SimpleNamespace(time=rec.time, force=rec.force, temperature=None)
+        for k in range(2):
+            z = np.log([a, p]) + 0.02 * rng.standard_normal(2)
+            wins.append(WindowDraws(f"{test}_w{k}", v, np.exp(z + 0.01 * rng.standard_normal((300, 2))), test))
+            windows.append(SimpleNamespace(id=f"{test}_w{k}", test=test, velocity=v, drive=drive))
+    cal = _calibration()
+    short = SamplerSettings(n_ensembles=2, n_walkers=14, max_steps=400, check_every=400)  # convergence not judged
+    cal.hierarchy = fit_hierarchy(wins, seed=0, sampler=short)
+    rows = leave_one_test_out(cal, wins, windows, records, n_draws=20)
+    assert [r["test"] for r in rows] == ["a", "b", "c"]
+    for r in rows:  # re-weighted and scored, or (weights too concentrated) no law of two tests, said
+        assert (0.0 <= r["coverage_90"] <= 1.0 and "re-weighting" in r["law"]) if "coverage_90" in r else \
+            r["law"].startswith("none: "), r
+    monkeypatch.setattr(hierarchy, "MIN_LEAVE_OUT_ESS", 10 ** 9)
+    rows = leave_one_test_out(cal, wins, windows, records, n_draws=20)
+    assert all(r["law"].startswith("none: a drift law of degree 1 needs at least 3 tests") for r in rows), rows
+    assert not any("coverage_90" in r for r in rows)

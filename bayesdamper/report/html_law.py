@@ -89,6 +89,9 @@ def prediction_check(check: Mapping | None) -> str:
             r = next((x for x in models[lab].get("rows", []) if x["test"] == t), {})
             speed = speed if speed is not None else r.get("speed_m_s")
             ext = " (extrapolated)" if r.get("extrapolated") else ""
+            if "coverage_90" not in r and r:  # not scored: too few tests left for a law, or every solve failed
+                cells += [_e(r.get("failed") or r.get("law", "")), "–", "–"]
+                continue
             cells += [_num(r.get("coverage_90"), ".0%") + ext, _num(r.get("coverage_50"), ".0%"),
                       _num(r.get("J_median"), ".4f")]
         rows.append([_e(t), _num(speed, ".3g", 1e3)] + cells)

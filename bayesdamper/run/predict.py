@@ -351,17 +351,25 @@ def leave_one_test_out(cal: Calibration, windows_draws: list, windows: list, rec
         if rec is None:
             continue
         ids = {w.id for w in ws}
-        law = leave_out(cal.hierarchy, windows_draws, test, seed=seed)
-        drive = ws[0].drive
         speed = float(np.median([w.velocity for w in ws]))
+        row = {"test": test, "speed_m_s": speed, "n_windows_left_out": len(ids)}
+        try:
+            law = leave_out(cal.hierarchy, windows_draws, test, seed=seed)
+        except ValueError as err:  # too few tests without it for a law
+            rows.append(row | {"law": f"none: {err}"})
+            continue
+        drive = ws[0].drive
         v0 = float(drive.velocity(rec.time[:1])[0])
         cov = float(np.mean(rec.temperature)) if cal.hierarchy.covariate is not None \
             and getattr(rec, "temperature", None) is not None else None
-        p = predict_history(replace(cal, hierarchy=law), rec.time, drive, speed, v0, measured=rec.force,
-                            n_draws=n_draws, seed=seed, workers=workers, covariate=cov)
+        try:
+            p = predict_history(replace(cal, hierarchy=law), rec.time, drive, speed, v0, measured=rec.force,
+                                n_draws=n_draws, seed=seed, workers=workers, covariate=cov)
+        except DataError as err:  # every draw failed to solve
+            rows.append(row | {"law": law.sampling.get("method", "re-fitted"), "failed": str(err)})
+            continue
         lo, hi = law.speed_range
-        rows.append({"test": test, "speed_m_s": speed, "n_windows_left_out": len(ids),
-                     "law": law.sampling.get("method", "re-fitted"), "extrapolated": not lo <= speed <= hi,
+        rows.append(row | {"law": law.sampling.get("method", "re-fitted"), "extrapolated": not lo <= speed <= hi,
                      "failed_solves": p.info["failed_solves"],
                      **{k: p.info[k] for k in ("coverage_90", "coverage_50", "J_median") if k in p.info}})
     return rows
