@@ -6,7 +6,7 @@ BD      = $(VENV)/bin/bayesdamper
 STAMP   = $(VENV)/.installed-stamp
 OUT    ?= results/rig-A
 
-.PHONY: setup demo test test-slow test-limits lint analyses-quick bench ci clean
+.PHONY: setup demo test test-slow test-extended test-limits lint analyses-quick bench ci clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,7 +27,11 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m "slow and not extended"
+
+# Slow checks kept out of CI for its time budget (demonstrations rather than guards of the product).
+test-extended: $(STAMP)
+	$(PY) -m pytest -q -s -m extended
 
 # The confusion tables of the closed loop, printed: on independent reference data (also in test-slow) and on
 # bayesdamper's own synthetic data (a consistency check, not in CI). One diagnose per case; long.

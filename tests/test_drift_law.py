@@ -150,11 +150,11 @@ def test_new_test_draws_follow_law_plus_both_scatters(fit1):
 
 @pytest.mark.slow
 def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
-    """Eight data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
+    """Six data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
     of speeds (the issue's criterion, pooled), and each true scatter inside its 90 % interval at least the binomial
-    0.5 % quantile of 8 x 2 intervals (11)."""
+    0.5 % quantile of 6 x 2 intervals (8)."""
     hits, tau_hits, rows = [], 0, []
-    for seed in range(8):
+    for seed in range(6):
         fit = fit_hierarchy(synthetic_windows(100 + seed), seed=seed)
         s = fit.summary(0.9)
         h = [_law_hits(fit, j) for j in (0, 1)]
@@ -164,9 +164,9 @@ def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
         rows.append(f"seed {100 + seed}: law in band at {h[0]:.2f} / {h[1]:.2f} of speeds, scatter intervals "
                     f"[{t[0]['lo']:.3f}, {t[0]['hi']:.3f}] / [{t[1]['lo']:.3f}, {t[1]['hi']:.3f}]")
     with capsys.disabled():
-        print("\n" + "\n".join(rows) + f"\npooled law coverage {np.mean(hits):.3f}, scatter {tau_hits}/16")
+        print("\n" + "\n".join(rows) + f"\npooled law coverage {np.mean(hits):.3f}, scatter {tau_hits}/12")
     assert np.mean(hits) >= 0.85
-    assert tau_hits >= binom.ppf(0.005, 16, 0.9)
+    assert tau_hits >= binom.ppf(0.005, 12, 0.9)
 
 
 def test_report_table_and_figure9_show_the_law(fit1):

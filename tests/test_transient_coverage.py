@@ -94,6 +94,7 @@ def test_two_stage_intervals_cover_independent_truth(tmp_path):
     assert max(r["J_ratio"] for r in rows if SETS[r["set"]].noise == "white") <= 1.1
 
 
+@pytest.mark.extended  # a demonstration of the paper's stage 2, not a guard of the product: make test-extended
 def test_conditional_stage_two_misses_starts_from_rest(tmp_path):
     """The cause, shown: conditioned on the step force and stage 1 (the paper's stage 2), the soft-gas set."""
     rows = _rows(tmp_path, ("W2",), SEED, ("--conditional", "--noise-model", "ar1"))
