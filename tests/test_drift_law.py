@@ -152,7 +152,7 @@ def test_new_test_draws_follow_law_plus_both_scatters(fit1):
 @pytest.mark.slow
 def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
     """Six data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
-    of speeds (the issue's criterion, pooled), and each true scatter inside its 90 % interval at least the binomial
+    of speeds (the stated criterion, pooled), and each true scatter inside its 90 % interval at least the binomial
     0.5 % quantile of 6 x 2 intervals (8)."""
     hits, tau_hits, rows = [], 0, []
     for seed in range(6):

@@ -1,6 +1,6 @@
 """The drift law (bayesdamper/inference/hierarchy.py) on data bayesdamper did not make (slow).
 
-The issue's criterion: "On independent data (a separate generator, parameters drifting with speed by a known law
+The criterion: "On independent data (a separate generator, parameters drifting with speed by a known law
 plus scatter): the hierarchical trend's 90 % bands hold the true law at >= 85 % of speeds, and the test-to-test
 scatter is recovered within its interval."
 
@@ -42,7 +42,7 @@ TAU = (0.10, 0.15)  # [log units] true sd between tests of log α_V, log p_R (th
 SEED = 2026  # fixed before the first run, not tuned
 V_REF = 1e-3  # [m/s] the laws' reference speed
 NAMES = ("alpha_V", "p_R_Pa")
-#: The issue's criterion: the 90 % band of the law holds the true law at this share of the grid speeds at least.
+#: The criterion: the 90 % band of the law holds the true law at this share of the grid speeds at least.
 MIN_COVERAGE = 0.85
 
 
@@ -150,10 +150,10 @@ def _tables(truth: dict, e: np.ndarray, summary: dict, wall: dict) -> str:
 
 @pytest.mark.slow
 def test_drift_law_bands_hold_the_true_law(identified, capsys):
-    """The issue's two rules, on one seeded data set.
+    """The two rules, on one seeded data set.
 
     * The 90 % band of the population law holds the true law at >= 85 % of the 41 grid speeds, per parameter (the
-      issue's number).
+      stated number).
     * The true τ of each parameter lies inside the 90 % interval of the sd between tests. The model estimates the
       sd of the population the tests are drawn from, so it is compared with τ, not with the realised sd of the nine
       drawn e (printed alongside).

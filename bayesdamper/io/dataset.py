@@ -312,6 +312,19 @@ def _read_lines(path: Path) -> tuple[list[str], str]:
     return lines, sha
 
 
+def _numeric(path: Path, lines: list[str], cols: tuple[int, ...], names: tuple[str, ...]) -> np.ndarray:
+    """The data rows' columns ``cols`` as floats, shape (n_rows, len(cols)), or a one-line DataError."""
+    if not any(line.split("#", 1)[0].strip() for line in lines[1:]):
+        raise DataError(f"{path}: empty file: a header but no data rows")
+    try:
+        data = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=cols, ndmin=2, dtype=float)
+    except (ValueError, TypeError, OverflowError, IndexError):
+        raise DataError(f"{path}: {_diagnose(path, lines, cols, names)}") from None
+    if data.shape[0] == 0:
+        raise DataError(f"{path}: empty file: a header but no data rows")
+    return data
+
+
 def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
     """Read and validate one test CSV.
 
@@ -336,14 +349,7 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
     path = Path(path)
     lines, sha = _read_lines(path)
     cols = _parse_header(path, lines[0])
-    if not any(line.split("#", 1)[0].strip() for line in lines[1:]):
-        raise DataError(f"{path}: empty file: a header but no data rows")
-    try:
-        data = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=cols, ndmin=2, dtype=float)
-    except (ValueError, TypeError, OverflowError, IndexError):
-        raise DataError(f"{path}: {_diagnose(path, lines, cols)}") from None
-    if data.shape[0] == 0:
-        raise DataError(f"{path}: empty file: a header but no data rows")
+    data = _numeric(path, lines, cols, COLUMNS)
     time, y, force = (data[:, k] for k in range(3))
     _check_columns(path, lines, time, y, force, tmax)
     return TestRecord(
@@ -382,15 +388,7 @@ def load_history(path: str | Path) -> TestRecord:
         shown = shown if len(shown) <= 80 else shown[:77] + "..."
         raise DataError(f"{path}: missing column(s) {', '.join(missing)} in header line 1 (expected "
                         f"time_s,displacement_m[,force_N][,velocity_m_s]; found {shown!r})")
-    cols = tuple(names.index(c) for c in need)
-    if not any(line.split("#", 1)[0].strip() for line in lines[1:]):
-        raise DataError(f"{path}: empty file: a header but no data rows")
-    try:
-        data = np.loadtxt(lines[1:], delimiter=",", comments="#", usecols=cols, ndmin=2, dtype=float)
-    except (ValueError, TypeError, OverflowError, IndexError):
-        raise DataError(f"{path}: {_diagnose(path, lines, cols, need)}") from None
-    if data.shape[0] == 0:
-        raise DataError(f"{path}: empty file: a header but no data rows")
+    data = _numeric(path, lines, tuple(names.index(c) for c in need), need)
     time, y = data[:, 0], data[:, 1]
     _check_columns(path, lines, time, y, np.zeros_like(time), None)
     return TestRecord(name=path.stem, path=path, time=_readonly(time), displacement=_readonly(y),
