@@ -150,6 +150,7 @@ def test_new_test_draws_follow_law_plus_both_scatters(fit1):
 
 
 @pytest.mark.slow
+@pytest.mark.extended  # 2 min: outside CI for its time budget (CI runs the end-to-end check on damper records)
 def test_law_bands_cover_the_truth_over_many_data_sets(capsys):
     """Six data sets: pooled over data sets and the speed grid the true law lies inside the 90 % band at >= 85 %
     of speeds (the stated criterion, pooled), and each true scatter inside its 90 % interval at least the binomial

@@ -103,6 +103,7 @@ def test_conditional_stage_two_misses_starts_from_rest(tmp_path):
     assert sum(r["alpha_V"] for r in init) <= 2
 
 
+@pytest.mark.extended  # 4-5 min on 2 cores: outside CI for its time budget, make test-extended
 def test_misspecified_intervals_cover_the_pseudo_true_value(tmp_path):
     """Two-state data (eq. (1) without accumulator): what the intervals promise is the pseudo-true value, the
     eq. (9) optimum of the noise-free record weighted by the noise colour, at the true step force and flow
