@@ -69,6 +69,8 @@ class Calibration:
     model: str
     sample_rate_Hz: float
     provenance: dict = field(default_factory=dict)
+    #: The windows the law was fitted to (:func:`calibration_windows`; not stored: a loaded calibration has none).
+    windows: list = field(default_factory=list, repr=False)
 
     # ------------------------------------------------------------------ storage
     def save(self, path: Path) -> None:
@@ -258,4 +260,4 @@ def calibrate(results, damper: DamperConstants, effects: dict | None = None, *, 
     rates = [1.0 / float(np.median(np.diff(r.time))) for r in results if len(r.time) > 1]
     model = "eq. (7)" + (" + " + ", ".join(sorted(effects)) if effects else "")
     return Calibration(h, flow, sd, phi, dict(effects or {}), damper, model,
-                       float(np.median(rates)) if rates else 0.0, dict(provenance or {}))
+                       float(np.median(rates)) if rates else 0.0, dict(provenance or {}), wins)

@@ -141,6 +141,12 @@ class Window:
                 "starts_settled": self.starts_settled, **self.info}
 
 
+def reconstructed_drive(rec) -> PiecewisePolynomial:
+    """The model's input from an :class:`~bayesdamper.io.reconstruct.InputReconstruction`: its pieces, with the
+    solver restarting at both ends only."""
+    return PiecewisePolynomial(rec.breaks, rec.coefs, [True] + [False] * (rec.breaks.size - 2) + [True])
+
+
 def _decimate(x: np.ndarray, q: int) -> np.ndarray:
     from scipy.signal import decimate
 

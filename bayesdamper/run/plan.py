@@ -99,21 +99,18 @@ def check_mode(mode: str) -> str:
 
 def _cycle_windows(ds, record, kind) -> tuple[list, dict]:
     from bayesdamper.io.reconstruct import bootstrap_inputs, reconstruct_input
-    from bayesdamper.io.windows import cycle_windows
-    from bayesdamper.physics.excitation import PiecewisePolynomial
+    from bayesdamper.io.windows import cycle_windows, reconstructed_drive
 
     try:
         rec = reconstruct_input(record.time, record.displacement, velocity=getattr(record, "velocity", None))
     except DataError as err:
         raise DataError(f"{record.path}: {err}") from None
-    def drive_of(r):
-        return PiecewisePolynomial(r.breaks, r.coefs, [True] + [False] * (r.breaks.size - 2) + [True])
-
     reps = bootstrap_inputs(record.time, record.displacement, velocity=getattr(record, "velocity", None),
                             n_replicates=INPUT_REPLICATES)
     summary = rec.as_dict()
-    windows = cycle_windows(record, kind.kind, kind.details, drive_of(rec), float(rec.velocity_error_m_s),
-                            ds.damper.piston_area, summary, tuple(drive_of(r) for r in reps))
+    windows = cycle_windows(record, kind.kind, kind.details, reconstructed_drive(rec),
+                            float(rec.velocity_error_m_s), ds.damper.piston_area, summary,
+                            tuple(reconstructed_drive(r) for r in reps))
     return windows, summary
 
 

@@ -92,13 +92,13 @@ def history_drive(record):
     """The model's input for a history: its reconstruction (a piecewise polynomial), the operating speed [m/s],
     the velocity at its start [m/s] and the reconstruction's description."""
     from bayesdamper.io.reconstruct import reconstruct_input
-    from bayesdamper.physics.excitation import PiecewisePolynomial
+    from bayesdamper.io.windows import reconstructed_drive
 
     try:
         rec = reconstruct_input(record.time, record.displacement, velocity=record.velocity)
     except DataError as err:
         raise DataError(f"{record.path}: {err}") from None
-    drive = PiecewisePolynomial(rec.breaks, rec.coefs, [True] + [False] * (rec.breaks.size - 2) + [True])
+    drive = reconstructed_drive(rec)
     v = rec.velocity(record.time)
     return drive, float(np.quantile(np.abs(v), SPEED_QUANTILE)), float(v[0]), rec.as_dict()
 
@@ -287,8 +287,6 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
     """The calibrations of a diagnosis (eq. (7), and with the selected ``effects`` if any) written to ``out_dir``,
     and the leave-one-test-out check of both: ``{"drift_model_before", "drift_model_after", "prediction_check"}``.
     A final calibration of an earlier run is removed when no effect is selected."""
-    from bayesdamper.inference.calibration import calibration_windows
-
     out = {}
     records = {r.name: r for r in ds.records}
     check = {"n_draws": LOO_DRAWS, "method": "each test's windows left out of the drift law (importance "
@@ -306,9 +304,8 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
         out[f"drift_model_{key}"] = summ
         if cal is None:
             continue
-        _, wins = calibration_windows(results, covariates=record_covariates(ds.records)[0])
         t0 = time.perf_counter()
-        rows = leave_one_test_out(cal, wins, windows, records, seed=seed, workers=workers)
+        rows = leave_one_test_out(cal, cal.windows, windows, records, seed=seed, workers=workers)
         check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
                                   **_pooled(rows)}
         if progress is not None and rows:
