@@ -253,3 +253,10 @@ def test_saturating_static_characteristic_gives_a_constrained_stage_1_with_a_not
     assert s["static"]["CL12"]["median"] > 0 and s["static"]["CL21"]["median"] > 0
     (seg,) = s["segments"]
     assert seg["id"] == "tri_1p10mm_s_s1" and seg["flow_prior"] == "stage 1 (plateaus)"
+    # the coefficients held at 0 keep eq. (8)'s sign in the stored draws (the cut draws stage 1's Gaussian
+    # restricted to >= 0), so a calibration or prediction built from them is valid
+    from bayesdamper.inference.posterior import read_transient
+
+    stored = read_transient(out / "posteriors" / "tri_1p10mm_s_s1.nc")
+    flow = stored["chains"][..., [stored["names"].index(n) for n in ("CL12", "CQ12", "CL21", "CQ21")]]
+    assert np.all(flow >= 0.0) and np.any(flow[..., 1] > 0.0)

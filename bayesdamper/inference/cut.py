@@ -3,7 +3,8 @@
 A transient's parameters come from three parts of a triangular test, each with its own data:
 
 * the four flow coefficients θ_c from the plateaus (stage 1; its posterior is the Gaussian of
-  :class:`~bayesdamper.inference.joint.StageOnePrior`),
+  :class:`~bayesdamper.inference.joint.StageOnePrior`, restricted to θ_c >= 0 as eq. (8) needs: this matters
+  only for a coefficient near 0, such as one stage 1 held at 0, and the joint coupling's box ends there too),
 * the pressure difference at the step Δp0 from the samples just before the step (mean of AR(1) noise of the
   plateaus' colour: :meth:`~bayesdamper.inference.joint.JointProblem.dp0_sd`),
 * α_V and p_R from the transient window (eq. (9) residual, AR(1) innovations with φ from the plateaus, the
@@ -49,7 +50,8 @@ COUPLINGS = ("cut", "joint")
 #: Indices of θ1 = (Δp0, C_L12, C_Q12, C_L21, C_Q21) in the joint vector.
 THETA1 = np.arange(2, 7)
 #: Redraws of θ1 for a draw whose moved (α_V, p_R) leaves the prior box (the prior truncates the cut
-#: distribution there); a draw still outside after these is clipped to the box.
+#: distribution there) or whose flow coefficients are not all >= 0; a draw still outside after these is clipped to
+#: the box and to 0.
 MAX_REDRAWS = 20
 
 
@@ -202,7 +204,7 @@ def propagate(res, joint: JointLogPosterior, theta1: np.ndarray, fit: CutFit, se
     d1 = rng.standard_normal((n, 5)) @ chol.T
     moved = flat2 + d1 @ fit.sensitivity.T
     for _ in range(MAX_REDRAWS):
-        out = np.any((moved < lo2) | (moved > hi2), axis=1)
+        out = np.any((moved < lo2) | (moved > hi2), axis=1) | np.any(theta1[1:] + d1[:, 1:] < 0, axis=1)
         if not out.any():
             break
         d1[out] = rng.standard_normal((int(out.sum()), 5)) @ chol.T
@@ -211,6 +213,7 @@ def propagate(res, joint: JointLogPosterior, theta1: np.ndarray, fit: CutFit, se
     full = np.empty((n, space.ndim))
     full[:, idx] = moved
     full[:, THETA1] = theta1 + d1
+    full[:, THETA1[1:]] = np.maximum(full[:, THETA1[1:]], 0.0)
     chain = full.reshape(e, t, w, space.ndim)
     tau = np.max([_tau(chain[k]) for k in range(e)], axis=0)
     return replace(res, chain=chain, tau=tau, rhat=post.rhat_across_ensembles(chain), ess_bulk=post.ess_bulk(chain))

@@ -12,6 +12,17 @@ Eq. (8) needs C_L, C_Q >= 0. Plateaus that eq. (4) cannot fit with both non-nega
 zeroed shifts one direction's forces up and the other's down; a force that saturates with speed bends the curve
 the wrong way) are fitted with the offending coefficient at 0 and the fit says so (``constrained``): a finding for
 the diagnosis, which tests the effects that would explain it, not a reason to refuse the data.
+
+One such explanation is checked here. A constant force offset F_0 of the force channel adds d F_0 / A_P to the
+plateau pressure drops of direction d = ±1: Δp = C_L Q + C_Q Q^2 + d p_0 with p_0 = F_0 / A_P, up in one direction
+and down in the other, so with plateaus in both directions p_0 is identifiable beside the four coefficients (one
+linear least-squares problem in five unknowns, :func:`fit_with_offset`). Where eq. (4) alone holds a coefficient at
+0, the fit with an offset is made, and it is reported (``StaticFit.offset``) when it has every coefficient positive
+and its offset lies more than :data:`OFFSET_MIN_T` standard errors from 0. It is reported, not applied: the
+coefficients stage 1 gives are eq. (4)'s alone, the ones that meet the measured plateaus with the model the
+windows are identified with, which has no offset (the windows' data keep it); the diagnosis tests the offset with
+the ``load_cell_offset`` effect and re-fits stage 1 on the plateaus with the offset removed. Plateaus that eq. (4)
+fits with non-negative coefficients get exactly that fit and no offset.
 """
 
 from __future__ import annotations
@@ -30,6 +41,9 @@ STATIC_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
 
 #: Fewest plateaus per direction that leave at least one degree of freedom for the residual variance.
 MIN_PLATEAUS_PER_DIRECTION = 3
+#: A force offset is reported only this many standard errors from 0 (the |t| > 3 of the plateau drift rule): below
+#: it, the coefficient eq. (4) made negative is as well explained by noise about a small true value.
+OFFSET_MIN_T = 3.0
 
 
 @dataclass(frozen=True)
@@ -80,11 +94,66 @@ class DirectionFit:
 
 
 @dataclass(frozen=True)
+class OffsetFit:
+    """Eq. (4) in both directions with a constant force offset: ``Δp = C_L Q + C_Q Q^2 + d p_0`` (d = +1 forward,
+    -1 backward), one linear least-squares fit.
+
+    Attributes
+    ----------
+    coefficients : ndarray, shape (4,)
+        [C_L12, C_Q12, C_L21, C_Q21] of the fit with the offset.
+    pressure : float
+        p_0 = F_0 / A_P [Pa]: F_0 is positive when the force channel reads F_0 at zero pressure difference (the
+        ``load_cell_offset`` effect's ``offset_N``).
+    covariance : ndarray, shape (5, 5)
+        s^2 (X^T X)^-1 of [C_L12, C_Q12, C_L21, C_Q21, p_0], s^2 the residual variance pooled over both directions.
+    residual_std : float
+        s [Pa].
+    dof : int
+        n - 5.
+    """
+
+    coefficients: np.ndarray
+    pressure: float
+    covariance: np.ndarray
+    residual_std: float
+    dof: int
+
+    @property
+    def standard_errors(self) -> np.ndarray:
+        """Standard errors of [C_L12, C_Q12, C_L21, C_Q21, p_0], shape (5,)."""
+        return np.sqrt(np.diag(self.covariance))
+
+    def force(self, area: float) -> tuple[float, float]:
+        """The offset F_0 and its standard error [N] for piston area ``area`` [m^2]."""
+        return float(self.pressure * area), float(self.standard_errors[4] * area)
+
+    @property
+    def explains(self) -> bool:
+        """Every coefficient positive and the offset more than :data:`OFFSET_MIN_T` standard errors from 0."""
+        return bool(np.all(self.coefficients > 0) and abs(self.pressure) > OFFSET_MIN_T * self.standard_errors[4])
+
+
+@dataclass(frozen=True)
 class StaticFit:
-    """Both directions of the stage-1 fit."""
+    """Both directions of the stage-1 fit.
+
+    Attributes
+    ----------
+    forward, backward : DirectionFit
+        Direction +1 (coefficients ``_12``) and -1 (``_21``).
+    offset : OffsetFit or None
+        The constant force offset that explains the coefficients held at 0 (module docstring), reported and not
+        applied; None when no coefficient is held or no offset explains it.
+    """
 
     forward: DirectionFit
     backward: DirectionFit
+    offset: OffsetFit | None = None
+
+    def offset_force(self, area: float) -> tuple[float, float] | None:
+        """The reported force offset F_0 and its standard error [N] for piston area ``area`` [m^2], or None."""
+        return self.offset.force(area) if self.offset is not None else None
 
     @property
     def coefficients(self) -> FlowCoefficients:
@@ -167,6 +236,31 @@ def fit_direction(flow_rate: np.ndarray, pressure_drop: np.ndarray, direction: i
     return DirectionFit(direction, float(coef[0]), float(coef[1]), cov, float(np.sqrt(s2)), q, dp, constrained)
 
 
+def fit_with_offset(forward: tuple[np.ndarray, np.ndarray], backward: tuple[np.ndarray, np.ndarray]) -> OffsetFit:
+    """Fit eq. (4) with a constant force offset to both directions' plateau points at once (:class:`OffsetFit`).
+
+    ``forward``, ``backward``: each direction's flow-rate magnitudes Q [m^3/s] and pressure drops
+    ``direction * mean(F) / A_P`` [Pa] as the plateaus give them (kept signed: an offset larger than a slow
+    plateau's force makes its pressure drop negative), at least three points each, so n - 5 >= 1. Coefficients are
+    returned as fitted, whatever their sign.
+    """
+    (q_f, dp_f), (q_b, dp_b) = ((np.abs(np.asarray(q, float)), np.asarray(dp, float)) for q, dp in (forward, backward))
+    n_f = q_f.size
+    x = np.zeros((n_f + q_b.size, 5))
+    x[:n_f, 0], x[:n_f, 1], x[:n_f, 4] = q_f, q_f * q_f, 1.0
+    x[n_f:, 2], x[n_f:, 3], x[n_f:, 4] = q_b, q_b * q_b, -1.0
+    y = np.r_[dp_f, dp_b]
+    scale = np.abs(x).max(axis=0)  # columns of order 1 (Q ~ 1e-6, Q^2 ~ 1e-12)
+    xs = x / scale
+    coef_s, *_ = np.linalg.lstsq(xs, y, rcond=None)
+    resid = y - xs @ coef_s
+    dof = y.size - 5
+    s2 = float(resid @ resid) / dof
+    coef = coef_s / scale
+    cov = s2 * np.linalg.inv(xs.T @ xs) / np.outer(scale, scale)
+    return OffsetFit(coef[:4].copy(), float(coef[4]), cov, float(np.sqrt(s2)), dof)
+
+
 def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
     """Stage 1: fit eq. (4) per direction to the plateaus of a data set.
 
@@ -176,10 +270,18 @@ def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
         Each with ``direction``, ``flow_rate`` [m^3/s] and ``pressure_drop`` [Pa].
     source : str
         Data-set name used in error messages.
+
+    Where a coefficient is held at 0, the fit with a constant force offset is made and reported in ``offset`` if it
+    explains the held coefficient (:attr:`OffsetFit.explains`); the coefficients stay eq. (4)'s alone.
     """
-    fits = {}
+    fits, points = {}, {}
     for direction in (1, -1):
         sel = [p for p in plateaus if p.direction == direction]
-        fits[direction] = fit_direction(np.array([p.flow_rate for p in sel]),
-                                        np.array([p.pressure_drop for p in sel]), direction, source)
-    return StaticFit(fits[1], fits[-1])
+        points[direction] = (np.array([p.flow_rate for p in sel]), np.array([p.pressure_drop for p in sel]))
+        fits[direction] = fit_direction(*points[direction], direction, source)
+    static = StaticFit(fits[1], fits[-1])
+    if static.constrained:
+        off = fit_with_offset(points[1], points[-1])
+        if off.explains:
+            return StaticFit(fits[1], fits[-1], off)
+    return static

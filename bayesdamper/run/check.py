@@ -54,6 +54,13 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
     if static.constrained:
         print(f"  held at 0 (the plateaus made them negative: an unzeroed load cell or a saturating force?): "
               f"{', '.join(static.constrained)}")
+    offset = static.offset_force(ds.damper.piston_area)
+    if offset is not None:
+        coefs = ", ".join(f"{n} = {c:.4e}" for n, c in zip(("C_L12", "C_Q12", "C_L21", "C_Q21"),
+                                                             static.offset.coefficients, strict=True))
+        print(f"  explained by a constant force offset F_0 = {offset[0]:.1f} ± {offset[1]:.1f} N (an unzeroed load "
+              f"cell?); with it, eq. (4) gives\n    {coefs} (all positive);\n    reported, not applied: the "
+              "coefficients below are eq. (4)'s alone; diagnose tests the offset (load_cell_offset)")
     for f, lab in ((static.forward, "12"), (static.backward, "21")):
         se = f.standard_errors
         print(f"  C_L{lab} = {f.laminar:.4e} ± {se[0]:.1e} kg m^-4 s^-1   "
