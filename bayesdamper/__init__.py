@@ -46,6 +46,7 @@ _LAZY = {
     "run_check": "bayesdamper.run.check",
     "run_identify": "bayesdamper.run.identify",
     "run_diagnosis": "bayesdamper.run.diagnose",
+    "run_conditions": "bayesdamper.run.conditions",
     "run_report": "bayesdamper.run.report",
     "predict": "bayesdamper.run.predict",
     "Calibration": "bayesdamper.inference.calibration",

@@ -184,7 +184,9 @@ def build_parser() -> argparse.ArgumentParser:
     g = sub.add_parser("diagnose", help="find the structured residual, trace it to a missing effect, refit",
                        description="Calibrate eq. (7), test its residuals for structure, fit candidate effects, "
                                    "select by the stated criterion, refit and report J before and after.")
-    g.add_argument("data_dir", help="data-set folder")
+    g.add_argument("data_dir", nargs="+",
+                   help="data-set folder; several: one damper under several conditions (each with a [condition] "
+                        "table), diagnosed together into OUT/<data set>/ and OUT/conditions.json")
     g.add_argument("--out", required=True,
                    help="output folder (required); identify posteriors of the same settings there are re-used")
     g.add_argument("--seed", type=int, default=0,
@@ -247,12 +249,17 @@ def main(argv: list[str] | None = None) -> int:
                              sample_rate=args.sample_rate, model=args.model, overwrite=args.force,
                              effects=parse_effect_specs(args.effect))
             elif args.command == "diagnose":
+                from bayesdamper.run.conditions import run_conditions
                 from bayesdamper.run.diagnose import run_diagnosis
 
                 effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
-                run_diagnosis(args.data_dir, args.out, seed=args.seed, effects=effects,
-                              workers=args.workers, tmax=args.tmax, credible_mass=args.credible_mass,
-                              max_steps=args.max_steps, figures=not args.no_figures, mode=args.mode)
+                kw = {"seed": args.seed, "effects": effects, "workers": args.workers, "tmax": args.tmax,
+                      "credible_mass": args.credible_mass, "max_steps": args.max_steps,
+                      "figures": not args.no_figures, "mode": args.mode}
+                if len(args.data_dir) == 1:
+                    run_diagnosis(args.data_dir[0], args.out, **kw)
+                else:
+                    run_conditions(args.data_dir, args.out, **kw)
             elif args.command == "predict":
                 import os
 

@@ -53,6 +53,7 @@ class CandidateFit:
     effects: dict = dataclasses.field(default_factory=dict)   # effect -> values, every fitted effect
     n_new: int = 0        # parameters new to the current model (the ΔBIC penalty)
     labels: tuple = ()    # labels of the new candidates
+    scales: dict = dataclasses.field(default_factory=dict)  # key of params -> {"z", "sd", "log", "sign"} (search scale)
 
 
 @dataclass(frozen=True)
@@ -343,14 +344,16 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     sse, xs, resid = engine.evaluate(pack(e_hat), flow_for(e_hat))
     forces = [p.force for p in engine.problems[:n_windows]]
     jp = pooled_j([r if r is not None else f for r, f in zip(resid, forces, strict=True)], forces)
-    out_params = {}
+    out_params, scales = {}, {}
     for j, ((spec, p), z, s_) in enumerate(zip(flat, z_hat, sd, strict=True)):
         zl = max(z - 1.645 * s_, lo[j]) if math.isfinite(s_) else lo[j]
         zh = min(z + 1.645 * s_, hi[j]) if math.isfinite(s_) else hi[j]
         ends = sorted((_untransform(p, zl), _untransform(p, zh)))
         key = p.name if len(specs) == 1 else f"{spec.label}.{p.name}"
         out_params[key] = {"median": _untransform(p, z), "lo": ends[0], "hi": ends[1]}
+        scales[key] = {"z": float(z), "sd": float(s_), "log": p.log, "sign": p.sign,
+                       "at_bound": bool(z - 1e-9 <= lo[j] or z + 1e-9 >= hi[j])}
     label = "+".join(s.label for s in specs if s.label in new) or "+".join(s.label for s in specs)
     values = dict(e_hat[specs[-1].effect]) if len(specs) == 1 else {}
     return CandidateFit(label, out_params, values, float(d_hat + n_new * math.log(n_total)), jp, sse, xs,
-                        len(cache), e_hat, n_new, tuple(s.label for s in specs if s.label in new))
+                        len(cache), e_hat, n_new, tuple(s.label for s in specs if s.label in new), scales)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from bayesdamper._version import __version__
 from bayesdamper.io.outputs import atomic_write_bytes
-from bayesdamper.report.html_law import law_table, prediction_check
+from bayesdamper.report.html_law import conditions_block, law_table, prediction_check
 from bayesdamper.report.html_parts import (
     _PARAMS,
     _STATIC_UNITS,
@@ -408,6 +408,7 @@ def _calibrated_blocks(diagnosis, mass: float) -> list[str]:
     if diagnosis.get("drift_model_after"):
         out.append("<p>The drift law with the selected effects:</p>" + law_table(diagnosis["drift_model_after"], mass))
     out.append(prediction_check(diagnosis.get("prediction_check")))
+    out.append(conditions_block(diagnosis.get("conditions")))
     return out
 
 

@@ -100,3 +100,34 @@ def prediction_check(check: Mapping | None) -> str:
         _num(models[lab].get("J_median"), ".4f"))])
     out.append(_table(header, rows, left=1))
     return "".join(out)
+
+
+def conditions_block(c: Mapping | None) -> str:
+    """One damper under several conditions: the explanation kept over all of them and, per effect parameter,
+    whether it is shared (pooled value) or varies with the condition (values and trend)."""
+    if not c:
+        return ""
+    cond = c.get("condition") or {}
+    here = ", ".join(f"{_e(k)} = {_num(v, '.4g')}" for k, v in cond.items())
+    own = ", ".join(c.get("own_selection") or []) or "none"
+    rows = []
+    for key, row in (c.get("parameters") or {}).items():
+        vals = "; ".join(f"{_num(v['median'], '.4g')} [{_num(v['lo'], '.4g')}, {_num(v['hi'], '.4g')}]"
+                         for v in row.get("values", []))
+        if row.get("shared"):
+            p = row["pooled"]
+            verdict = f"shared: {_num(p['median'], '.4g')} [{_num(p['lo'], '.4g')}, {_num(p['hi'], '.4g')}]"
+        else:
+            verdict = "varies with the condition" + "".join(
+                f"; slope per {_e(k)} {_num(t['slope'], '.4g')} [{_num(t['slope_lo'], '.4g')}, "
+                f"{_num(t['slope_hi'], '.4g')}]" + (" (log scale)" if t.get("scale") == "log" else "")
+                for k, t in (row.get("trend") or {}).items())
+        rows.append([_e(key), vals, verdict])
+    return (f'<h3>One damper under several conditions</h3><p>This data set is one condition ({here}) of a damper '
+            f"diagnosed under several. Its own loop selected: {_e(own)}. Every effect a condition selected "
+            f"({_e(', '.join(c.get('union') or []) or 'none')}) was fitted at every condition; the explanation kept "
+            f"on the evidence pooled over them: <b>{_e(', '.join(c.get('kept') or []) or 'none')}</b>. "
+            "Per parameter, the values at each condition (90 % intervals) and whether they are shared (Cochran's Q) "
+            "or vary with the condition (weighted straight line against it). The full account is "
+            "<code>conditions.json</code> one folder up.</p>"
+            + (_table(["parameter", "per condition", "verdict"], rows, left=3) if rows else ""))

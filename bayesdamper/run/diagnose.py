@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -115,28 +116,80 @@ def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
                                                                      n_walkers=FINAL_WALKERS))
 
 
-@one_blas_thread()
-def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
-                  workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
-                  max_steps: int | None = None, figures: bool = True, quiet: bool = False,
-                  tests: list[str] | None = None, mode: str = "auto") -> dict:
-    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model (with one BLAS
-    thread per process: :mod:`bayesdamper.run.threads`), on the windows of any data set.
+@dataclass
+class Prepared:
+    """One data set made ready for the search: windows, calibrated baseline, residual structure and signature,
+    candidate list, and the search problems (a fresh :class:`ProfileEngine` from :meth:`engine` each time: an
+    engine's workers see the problems of the engine built last)."""
 
-    ``tests`` restricts the run to the named records (file stems) of the data set; ``mode`` as for ``identify``
-    (:mod:`bayesdamper.run.plan`).
-    """
+    ds: object
+    segs: tuple
+    windows: list
+    static: object
+    out_dir: Path
+    settings: StageTwoSettings
+    prov: dict
+    base: list
+    base_resid: list
+    base_flows: list
+    noise: dict
+    noises: list
+    rows: list
+    structure: dict
+    signature: dict
+    names: list
+    problems: list
+    warm: list
+    screen: list
+    screen_warm: list
+    static_for: object
+    workers: int
+    seed: int
+    credible_mass: float
+    progress: Progress
+    t0: float
 
-    t0 = time.perf_counter()
-    progress = Progress(False if quiet else None)
+    @property
+    def speeds(self) -> list[float]:
+        return _test_speeds(self.windows)
+
+    @property
+    def forces(self) -> list[np.ndarray]:
+        return [p.force for p in self.problems]
+
+    def flow_for(self, e):
+        st = self.static_for(e)
+        return st.coefficients if st is not None else None
+
+    def engine(self) -> ProfileEngine:
+        return ProfileEngine(self.problems, list(self.warm), self.workers, screen=screening_subset(self.speeds),
+                             screen_problems=self.screen, screen_warm=list(self.screen_warm) if self.screen_warm
+                             else self.screen_warm)
+
+
+def check_effects(effects: list[str] | None) -> list[str]:
+    """The library effects to search (all but the generic one by default); SettingsError for an unknown name."""
     names = [n for n in EFFECTS if n != GENERIC] if not effects else list(effects)
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
+    return names
+
+
+def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] | None = None,
+                      workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
+                      max_steps: int | None = None, progress: Progress | None = None, tests: list[str] | None = None,
+                      mode: str = "auto", plan=None) -> Prepared:
+    """Steps 1-2 of the diagnosis of one data set: the calibrated baseline (re-used from ``identify`` posteriors
+    in ``out`` of the same settings), the residual structure and dynamics, the candidates and the search
+    problems. ``plan``: the data set already planned (:func:`bayesdamper.run.plan.plan_dataset`)."""
+    t0 = time.perf_counter()
+    progress = progress or Progress()
+    names = check_effects(effects)
     from bayesdamper.run.plan import plan_dataset
 
     with progress.phase("diagnose: load, windows, stage 1", unit="window") as ph:
-        plan = plan_dataset(data_dir, tmax, mode)
+        plan = plan or plan_dataset(data_dir, tmax, mode)
         ds, segs, windows, static = plan.ds, plan.segs, plan.windows, plan.static
         ph.done = len(windows)
     if tests:
@@ -207,56 +260,85 @@ def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] 
     # the reference inertance case of tests/test_confusion.py lost its only candidate); the final model is solved
     # uncapped at the likelihood's tolerance
     problems, warm, screen, screen_warm = search_problems(windows, base, ds.damper, flow0, STEPS_PER_SAMPLE)
-    engine = ProfileEngine(problems, warm, workers, screen=screening_subset(_test_speeds(windows)),
-                           screen_problems=screen, screen_warm=screen_warm)
     plateaus = [p for s in segs for p in s.plateaus]
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
+    return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
+                    rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
+                    seed, credible_mass, progress, t0)
 
-    def flow_for(e):
-        st = static_for(e)
-        return st.coefficients if st is not None else None
 
-    forces = [p.force for p in problems]
-    with progress.phase("diagnose: candidate effects", unit="fit"):
+def search_effects(p: Prepared) -> tuple[list, dict, list]:
+    """Step 2's select-and-refit loop on ``p``: ``(selected labels, {effect: values}, rounds)``."""
+    engine = p.engine()
+    with p.progress.phase(f"diagnose: candidate effects ({p.ds.name})", unit="fit"):
         try:
-            selected, fixed, rounds = select_effects(engine, names, forces, flow_for, progress,
-                                                     _test_speeds(windows))
+            selected, fixed, rounds = select_effects(engine, p.names, p.forces, p.flow_for, p.progress, p.speeds)
         finally:
             engine.close()
-        progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
+        p.progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
+    return selected, fixed, rounds
 
-    # 3. the final model, calibrated with uncertainty like the baseline (the same likelihood, sampler and rules)
+
+def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, figures: bool = True,
+                     quiet: bool = False, extra: dict | None = None) -> dict:
+    """Step 3: the final model with the effects ``fixed`` calibrated with uncertainty like the baseline (the same
+    likelihood, sampler and rules), the drift law and prediction check, figures and ``diagnosis.json`` (with
+    ``extra`` merged in)."""
+    ds, windows, segs, progress = p.ds, p.windows, p.segs, p.progress
+    area = ds.damper.piston_area
     if selected:
-        static_final = static_for(fixed) or static
+        from bayesdamper.inference.joint import StageOnePrior
+        from bayesdamper.inference.plateau_noise import plateau_noise as plateau_ar1
+
+        static_final = p.static_for(fixed) or p.static
         flow_final = static_final.coefficients if static_final is not None else None
         prior_final = (StageOnePrior.from_fit(static_final, plateau_ar1(segs)) if static_final is not None
                        else None)
         eff = effect_argument(fixed)
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(windows), unit="window"):
-            final = identify_all(windows, ds.damper, flow_final, final_settings(settings), seed, workers, None,
-                                 prov, progress, prior=prior_final, effects=eff)
+            final = identify_all(windows, ds.damper, flow_final, final_settings(p.settings), p.seed, p.workers, None,
+                                 p.prov, progress, prior=prior_final, effects=eff)
             progress.note(f"{sum(r.entry['converged'] for r in final)} converged")
         final_resid, final_flows = baseline_residuals(windows, final, ds.damper, flow_final, eff)
     else:
-        final, final_resid, final_flows = base, base_resid, base_flows
+        final, final_resid, final_flows = p.base, p.base_resid, p.base_flows
+    signature = p.signature
     if "cross_correlation_before" in signature:
         final_model = [w.force + r for w, r in zip(windows, final_resid, strict=True)]
         signature["cross_correlation_after"] = residual_cross_correlation(
             windows, [-r for r in final_resid], final_model, area, final_flows,
             signature["cross_correlation_before"]["driver"])
-    diagnosis = summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise, noises, rows,
-                                    structure, signature, rounds, selected, fixed, names, settings,
-                                    final_settings(settings), credible_mass, seed, prov)
+    diagnosis = summarise_diagnosis(ds, windows, p.base, final, p.base_resid, final_resid, p.noise, p.noises, p.rows,
+                                    p.structure, signature, rounds, selected, fixed, p.names, p.settings,
+                                    final_settings(p.settings), p.credible_mass, p.seed, p.prov)
+    diagnosis.update(extra or {})
     with progress.phase("diagnose: drift law and prediction check", unit="model"):
-        diagnosis.update(calibrate_and_check(out_dir, ds, windows, base, final, fixed if selected else {}, seed=seed,
-                                             credible_mass=credible_mass, provenance=prov, workers=workers,
-                                             progress=progress))
+        diagnosis.update(calibrate_and_check(p.out_dir, ds, windows, p.base, final, fixed if selected else {},
+                                             seed=p.seed, credible_mass=p.credible_mass, provenance=p.prov,
+                                             workers=p.workers, progress=progress))
     if figures:
         from bayesdamper.report.figures import write_diagnosis_figures
 
         with progress.phase("diagnose: figures", unit="file") as ph:
-            diagnosis["figures"] = write_diagnosis_figures(out_dir, windows, base, final, base_resid,
+            diagnosis["figures"] = write_diagnosis_figures(p.out_dir, windows, p.base, final, p.base_resid,
                                                            final_resid, diagnosis)
             ph.done = count_files(diagnosis["figures"])
-    close_diagnosis(out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - t0, quiet)
+    close_diagnosis(p.out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - p.t0, quiet)
     return diagnosis
+
+
+@one_blas_thread()
+def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
+                  workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
+                  max_steps: int | None = None, figures: bool = True, quiet: bool = False,
+                  tests: list[str] | None = None, mode: str = "auto") -> dict:
+    """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model (with one BLAS
+    thread per process: :mod:`bayesdamper.run.threads`), on the windows of any data set.
+
+    ``tests`` restricts the run to the named records (file stems) of the data set; ``mode`` as for ``identify``
+    (:mod:`bayesdamper.run.plan`).
+    """
+    p = prepare_diagnosis(data_dir, out, seed=seed, effects=effects, workers=workers, tmax=tmax,
+                          credible_mass=credible_mass, max_steps=max_steps,
+                          progress=Progress(False if quiet else None), tests=tests, mode=mode)
+    return finish_diagnosis(p, *search_effects(p), figures=figures, quiet=quiet)

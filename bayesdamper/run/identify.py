@@ -53,6 +53,20 @@ def dataset_folder(name: str) -> str:
     return safe
 
 
+def dataset_folders(datasets) -> list[str]:
+    """The output folder of each of several data sets: its name, or its folder's name where several share a name
+    (one damper tested under several conditions). SettingsError when two would still share a folder."""
+    names = [dataset_folder(ds.name) for ds in datasets]
+    names = [dataset_folder(ds.path.name) if names.count(n) > 1 else n
+             for ds, n in zip(datasets, names, strict=True)]
+    for i, n in enumerate(names):
+        if n in names[:i]:
+            j = names.index(n)
+            raise SettingsError(f"{datasets[j].path}, {datasets[i].path}: both data sets would be written to "
+                                f"{n!r}; give them distinct [damper] names or folder names")
+    return names
+
+
 @dataclass
 class _Job:
     """One data set of an ``identify`` run: validated, nothing written yet."""
@@ -101,16 +115,7 @@ def _plan(data_dirs: list, out: str | Path, settings: StageTwoSettings, seed: in
     out_root = Path(out)
     if out_root.exists() and not out_root.is_dir():
         raise SettingsError(f"{out_root}: exists and is not a folder")
-    if len(prepared) == 1:
-        outs = [out_root]
-    else:
-        names = [dataset_folder(p[0].name) for p in prepared]
-        for i, n in enumerate(names):
-            if n in names[:i]:
-                j = names.index(n)
-                raise SettingsError(f"{data_dirs[j]}, {data_dirs[i]}: both data sets are called {n!r}; "
-                                    "give them distinct [damper] names")
-        outs = [out_root / n for n in names]
+    outs = [out_root] if len(prepared) == 1 else [out_root / n for n in dataset_folders([p[0] for p in prepared])]
     jobs = []
     for (ds, segs, trs, static), out_dir, p in zip(prepared, outs, plans, strict=True):
         if not trs:
@@ -170,10 +175,13 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
         results[i] = r
     entries = [r.entry for r in results]
     summary = {
-        "dataset": ds.name, "mode": job.plan.mode, "mode_reason": job.plan.mode_reason,
+        "dataset": ds.name, "out_folder": out_dir.name, "condition": dict(ds.condition),
+        "mode": job.plan.mode, "mode_reason": job.plan.mode_reason,
         "credible_mass": credible_mass, "plan": job.plan.as_dict(),
         "static": static.intervals(credible_mass) if static is not None else None,
         "static_constrained": static.constrained if static is not None else [],
+        "static_offset_N": (dict(zip(("value", "se"), static.offset_force(ds.damper.piston_area), strict=True))
+                            if static is not None and static.offset is not None else None),
         "segments": entries,
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
         "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
@@ -287,4 +295,4 @@ def run_identify(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out:
 
 def identify_out_dir(out: str | Path, summary: dict, n_datasets: int) -> Path:
     """The folder :func:`run_identify` wrote ``summary`` into."""
-    return Path(out) if n_datasets == 1 else Path(out) / dataset_folder(summary["dataset"])
+    return Path(out) if n_datasets == 1 else Path(out) / summary.get("out_folder", dataset_folder(summary["dataset"]))

@@ -36,11 +36,22 @@ def run_report(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: s
         except ImportError as err:  # not part of this installation (yet): the report says so
             note = f"the diagnosis module cannot be imported ({err})"
             print(f"bayesdamper report: no diagnosis: {note}", file=sys.stderr)
+    joint = None
+    if run_diagnosis is not None and len(dirs) > 1:
+        from bayesdamper.io.dataset import load_dataset
+        from bayesdamper.run.conditions import one_damper, run_conditions
+
+        if one_damper([load_dataset(d, tmax=tmax) for d in dirs]) is None:  # one damper under several conditions
+            joint = run_conditions([str(d) for d in dirs], str(out), seed=seed, workers=workers, tmax=tmax,
+                                   credible_mass=credible_mass, max_steps=max_steps, figures=figures,
+                                   mode=identify_options.get("mode", "auto"))["diagnoses"]
     pages = []
-    for d, summary in zip(dirs, summaries, strict=True):
+    for k, (d, summary) in enumerate(zip(dirs, summaries, strict=True)):
         out_dir = identify_out_dir(out, summary, len(dirs))
         diagnosis = None
-        if run_diagnosis is not None:
+        if joint is not None:
+            diagnosis = joint[k]
+        elif run_diagnosis is not None:
             diagnosis = run_diagnosis(str(d), str(out_dir), seed=seed, workers=workers, tmax=tmax,
                                       credible_mass=credible_mass, max_steps=max_steps, figures=figures,
                                       mode=identify_options.get("mode", "auto"))
