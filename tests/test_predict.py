@@ -266,3 +266,15 @@ def test_leave_one_test_out_scores_each_test_or_says_why_not(tmp_path, monkeypat
     rows = leave_one_test_out(cal, wins, windows, records, n_draws=20)
     assert all(r["law"].startswith("none: a drift law of degree 1 needs at least 3 tests") for r in rows), rows
     assert not any("coverage_90" in r for r in rows)
+
+
+def test_the_check_line_says_when_no_test_was_scored():
+    """Three tests: leaving one out leaves two, too few for a law, so no row is scored; the line says so instead of
+    failing on the missing share."""
+    from bayesdamper.run.predict import _pooled, check_line
+
+    rows = [{"test": t, "law": "none: a drift law of degree 1 needs at least 3 tests"} for t in "abc"]
+    line = check_line("eq7", _pooled(rows) | {"wall_s": 1.0}, len(rows))
+    assert "no test scored" in line and "3 tests left out" in line
+    scored = [{"test": "a", "coverage_90": 0.9, "coverage_50": 0.5, "J_median": 0.01}] + rows[1:]
+    assert "inside the 90 % band 90 %" in check_line("eq7", _pooled(scored) | {"wall_s": 1.0}, 3)

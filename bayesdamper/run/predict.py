@@ -309,12 +309,18 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
         check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
                                   **_pooled(rows)}
         if progress is not None and rows:
-            pooled = check["models"][label]
-            progress(f"prediction check ({cal.model}): measured inside the 90 % band "
-                     f"{100 * pooled['coverage_90']:.0f} % of samples, median J {pooled['J_median']:.4f}, "
-                     f"{len(rows)} tests left out, {pooled['wall_s']:.0f} s")
+            progress(check_line(cal.model, check["models"][label], len(rows)))
     out["prediction_check"] = check
     return out
+
+
+def check_line(model: str, pooled: dict, n_tests: int) -> str:
+    """One progress line of the prediction check of ``model``; ``pooled`` is its entry (``_pooled`` and
+    ``wall_s``), which holds no score when no test could be predicted without it."""
+    scored = (f"measured inside the 90 % band {100 * pooled['coverage_90']:.0f} % of samples, median J "
+              f"{pooled['J_median']:.4f}" if "coverage_90" in pooled else
+              "no test scored (too few tests left for a law, or every solve failed)")
+    return f"prediction check ({model}): {scored}, {n_tests} tests left out, {pooled['wall_s']:.0f} s"
 
 
 def _pooled(rows: list[dict]) -> dict:
