@@ -50,6 +50,12 @@ NAMES = ("alpha_V", "p_R_Pa")
 SCATTER_PRIOR_SCALE = 1.0
 #: Box of each scatter sd [log units]: from 0 (none) to 3 (a factor 20).
 SCATTER_BOUNDS = (0.0, 3.0)
+#: The sampler moves each scatter sd as log sd, from this floor [log units] to the box's top: the hyper-posterior
+#: of a few tests is a funnel whose sds range over decades (3 windows of one damper: 0.006 to 1.25 between the 5th and
+#: 95th percentiles), which a move of one scale crosses slowly (τ above 200 steps), while in log sd its density has
+#: the Jacobian sd and falls off exponentially below the data's resolution. The half-Cauchy's mass below the floor
+#: (about 0.64 · floor / SCATTER_PRIOR_SCALE) is left out.
+LOG_SD_FLOOR = 1e-5
 #: Box of each scatter correlation (a correlation of exactly ±1 makes the covariance singular).
 RHO_BOUND = 0.98
 #: Walkers per ensemble of the hyper-posterior's sampler (at least 2 · ndim + 2).
@@ -219,6 +225,39 @@ class HyperLogPosterior:
         quad = mvm - 2 * np.sum(beta * xvm, axis=1) + np.einsum("wi,wij,wj->w", beta, xvx, beta)
         out = -0.5 * quad - 0.5 * logdet - len(self.m) * math.log(2 * math.pi)
         return np.where(np.isfinite(out) & ok, out, -np.inf)
+
+
+class LogSdTarget:
+    """:class:`HyperLogPosterior` with its sds sampled as log sd: rows u → x (sd = exp u), log density plus the log
+    Jacobian Σ u over the sds (:data:`LOG_SD_FLOOR`)."""
+
+    def __init__(self, target: HyperLogPosterior):
+        self.target = target
+        self.sd = np.array([0, 1] + ([3, 4] if target.within else []))
+        self.lower, self.upper = np.array(target.lower, float), np.array(target.upper, float)
+        self.lower[self.sd] = math.log(LOG_SD_FLOOR)
+        self.upper[self.sd] = np.log(target.upper[self.sd])
+
+    def to_x(self, u: np.ndarray) -> np.ndarray:
+        x = np.array(u, float, ndmin=2)
+        x[:, self.sd] = np.exp(x[:, self.sd])
+        return x
+
+    def to_u(self, x: np.ndarray) -> np.ndarray:
+        u = np.array(x, float, ndmin=2)
+        u[:, self.sd] = np.log(np.maximum(u[:, self.sd], LOG_SD_FLOOR))
+        return u
+
+    def batch(self, u: np.ndarray) -> np.ndarray:
+        u = np.atleast_2d(np.asarray(u, float))
+        out = np.full(len(u), -np.inf)
+        inside = np.all(np.isfinite(u), axis=1) & np.all((u > self.lower) & (u < self.upper), axis=1)
+        if np.any(inside):
+            out[inside] = self.target.batch(self.to_x(u[inside])) + np.sum(u[inside][:, self.sd], axis=1)
+        return out
+
+    def __call__(self, u: np.ndarray) -> float:
+        return float(self.batch(np.asarray(u)[None, :])[0])
 
 
 def _law_design(speed, covariate, v_c: float, v_s: float, degree: int, cov: dict | None) -> np.ndarray:
@@ -439,11 +478,17 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
     x0 = np.clip(x0, lower + 1e-6, upper - 1e-6)
     best = minimize(neg, x0, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-6, "fatol": 1e-8})
     start = np.clip(best.x if best.fun < neg(x0) else x0, lower + 1e-4, upper - 1e-4)
+    logsd = LogSdTarget(target)
+    # the start in log sd: a mode on the boundary sd = 0 is no mode of the log-sd density (its Jacobian vanishes
+    # there); start at least at a hundredth of the sd the window means scatter by
+    u0 = logsd.to_u(np.maximum(start, np.r_[0.01 * sd0, -1.0, (0.01 * sd0) if target.within else [],
+                                            [-1.0] if target.within else []]))[0]
+    u0 = np.clip(u0, logsd.lower + 1e-4, logsd.upper - 1e-4)
     settings = sampler or SamplerSettings(n_walkers=max(N_WALKERS, 2 * start.size + 2), move="de+laplace",
                                           check_every=250)
-    res = sample_posterior(target, start, lower, upper, settings, seed, progress)
+    res = sample_posterior(logsd, u0, logsd.lower, logsd.upper, settings, seed, progress)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 29]))
-    scatter = res.flat()
+    scatter = logsd.to_x(res.flat())
     if len(scatter) > MAX_DRAWS:  # an even thinning of the chains: the stored law stays small
         scatter = scatter[np.linspace(0, len(scatter) - 1, MAX_DRAWS).round().astype(int)]
     flat = np.column_stack([target.trend_given(scatter, rng), scatter])
