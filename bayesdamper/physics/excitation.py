@@ -298,9 +298,18 @@ class PiecewisePolynomial:
 
     def window(self, t0: float, t1: float) -> PiecewisePolynomial:
         """The input on ``[t0, t1]`` [s] (covered by rest pieces where it does not reach), with breaks at both
-        ends; the piece holding ``t0`` is re-expanded about ``t0``."""
+        ends; the piece holding ``t0`` is re-expanded about ``t0``. The polynomial is immutable, so the last window
+        is kept and returned again for the same ends (a fit solves one window hundreds of times)."""
         if not (np.isfinite(t0) and np.isfinite(t1) and t1 > t0):
             raise SettingsError(f"input window needs finite t0 < t1, got [{t0!r}, {t1!r}]")
+        last = self.__dict__.get("_last_window")
+        if last is not None and last[0] == (t0, t1):
+            return last[1]
+        out = self._window(t0, t1)
+        object.__setattr__(self, "_last_window", ((t0, t1), out))
+        return out
+
+    def _window(self, t0: float, t1: float) -> PiecewisePolynomial:
         full = self.cover(t0, t1)
         b = full.breaks
         inside = np.flatnonzero((b > t0) & (b < t1))

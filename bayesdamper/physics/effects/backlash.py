@@ -107,15 +107,134 @@ def backlash_knots(knot_t: np.ndarray, knot_y: np.ndarray, gap: float,
     return _play_knots(kt, ky, r, yp)
 
 
-def _first_root(c: np.ndarray, h: float) -> float | None:
-    """Smallest real root in (0, h) of the polynomial sum_j c[j] s^j, or None."""
-    cc = np.trim_zeros(np.asarray(c, dtype=float)[::-1], "f")
-    if cc.size < 2:
-        return None
-    roots = np.roots(cc)
-    real = roots[np.abs(roots.imag) <= 1e-9 * max(1.0, h)].real
-    real = real[(real > MERGE_TIME_S) & (real < h - MERGE_TIME_S)]
-    return float(real.min()) if real.size else None
+#: Sub-intervals of a piece in which a root is bracketed by a sign change and then bisected: two roots closer than
+#: a 32nd of a piece (a touch of a side of the play, or a velocity that grazes zero, shorter than a 32nd of a sample
+#: interval of a smoothed record) are not seen, and the piston then neither takes nor leaves contact there.
+ROOT_SUBINTERVALS = 32
+
+
+@njit(cache=True)
+def _poly(c, s):
+    out = 0.0
+    for j in range(c.shape[0] - 1, -1, -1):
+        out = out * s + c[j]
+    return out
+
+
+@njit(cache=True)
+def _first_root(c, h):
+    """Smallest real root in (MERGE_TIME_S, h - MERGE_TIME_S) of sum_j c[j] s^j where it changes sign, or -1.0."""
+    lo = MERGE_TIME_S
+    hi = h - MERGE_TIME_S
+    if hi <= lo:
+        return -1.0
+    step = (hi - lo) / ROOT_SUBINTERVALS
+    a = lo
+    fa = _poly(c, a)
+    for i in range(1, ROOT_SUBINTERVALS + 1):
+        b = lo + i * step if i < ROOT_SUBINTERVALS else hi
+        fb = _poly(c, b)
+        if fa == 0.0:
+            return a
+        if (fa < 0.0) != (fb < 0.0):
+            for _ in range(200):  # bisection to the last bit
+                m = 0.5 * (a + b)
+                if m <= a or m >= b:
+                    break
+                fm = _poly(c, m)
+                if (fm < 0.0) == (fa < 0.0):
+                    a, fa = m, fm
+                else:
+                    b = m
+            return 0.5 * (a + b)
+        a, fa = b, fb
+    return -1.0
+
+
+@njit(cache=True)
+def _shift_coefs(c, d):
+    """Coefficients of p(s + d) in powers of s, for p(s) = sum_j c[j] s^j (synthetic division)."""
+    out = c.copy()
+    n = out.shape[0]
+    for i in range(n - 1):
+        for j in range(n - 2, i - 1, -1):
+            out[j] += d * out[j + 1]
+    return out
+
+
+@njit(cache=True)
+def _play_pieces(breaks, coefs, restart_in, r, yp):
+    """The play operator on polynomial pieces (compiled core of :func:`play_polynomial`)."""
+    m, k_deg = coefs.shape
+    cap = 3 * k_deg * m + 2  # each piece holds fewer than 3 k_deg contacts and reversals
+    b_out = np.empty(cap + 1)
+    c_out = np.zeros((cap, k_deg))
+    f_out = np.zeros(cap + 1, dtype=np.bool_)
+    b_out[0] = breaks[0]
+    f_out[0] = True
+    n = 0  # pieces written
+    side = 0.0  # 0: free (piston at rest at yp); -r: dragged forward (y_P = y_A - r); +r: dragged back
+    for k in range(m):
+        ta, tb = breaks[k], breaks[k + 1]
+        c = coefs[k]
+        dc = np.zeros(k_deg - 1)
+        for j in range(1, k_deg):
+            dc[j - 1] = c[j] * j
+        s0 = 0.0
+        while s0 < tb - ta:
+            if n >= cap - 2:
+                raise ValueError("play operator: more contacts in a piece than its degree allows")
+            h = tb - ta - s0
+            cs = _shift_coefs(c, s0)
+            dcs = _shift_coefs(dc, s0)
+            if side == 0.0:  # free: the first contact with either side of the play
+                best, best_side = -1.0, 0.0
+                for sd, level in ((-r, yp + r), (r, yp - r)):
+                    cl = cs.copy()
+                    cl[0] -= level
+                    root = _first_root(cl, h)
+                    if root >= 0.0 and (best < 0.0 or root < best):
+                        best, best_side = root, sd
+                if abs(cs[0] - yp) >= r - CONTACT_M and (dcs[0] > 0) == (cs[0] > yp) and abs(dcs[0]) > MOVING_M_S:
+                    best, best_side = 0.0, (-r if dcs[0] > 0 else r)  # at a side and moving out: taken along now
+                if best < 0.0:
+                    t_end = ta + s0 + h
+                    if t_end - b_out[n] > MERGE_TIME_S:
+                        c_out[n, :] = 0.0
+                        c_out[n, 0] = yp
+                        b_out[n + 1] = t_end
+                        f_out[n + 1] = False
+                        n += 1
+                    s0 += h
+                    continue
+                if best > 0.0:
+                    t_end = ta + s0 + best
+                    if t_end - b_out[n] > MERGE_TIME_S:
+                        c_out[n, :] = 0.0
+                        c_out[n, 0] = yp
+                        b_out[n + 1] = t_end
+                        n += 1
+                    f_out[n] = True  # the piston's velocity jumps from 0 where it is taken along
+                    s0 += best
+                side = best_side
+                continue
+            # dragged: follow the actuator until its velocity changes sign (at once if it no longer moves out)
+            outward = -side * dcs[0] > 0.0 and abs(dcs[0]) > MOVING_M_S
+            root = 0.0 if not outward else _first_root(dcs, h)
+            end = h if root < 0.0 else root
+            t_end = ta + s0 + end
+            if t_end - b_out[n] > MERGE_TIME_S:
+                c_out[n, :] = cs
+                c_out[n, 0] += side
+                b_out[n + 1] = t_end
+                f_out[n + 1] = False
+                n += 1
+            s0 += end
+            if root >= 0.0:
+                yp = _poly(cs, end) + side
+                side = 0.0
+        f_out[n] = f_out[n] or restart_in[k + 1]
+    return b_out[:n + 1].copy(), c_out[:n].copy(), f_out[:n + 1].copy()
 
 
 def play_polynomial(drive: PiecewisePolynomial, gap: float, y_piston0: float | None = None) -> PiecewisePolynomial:
@@ -141,60 +260,10 @@ def play_polynomial(drive: PiecewisePolynomial, gap: float, y_piston0: float | N
     r = 0.5 * float(gap)
     y0 = float(drive.coefs[0, 0])
     yp = y0 if y_piston0 is None else min(max(float(y_piston0), y0 - r), y0 + r)
-    side = 0.0  # 0: free (piston at rest at yp); -r: dragged forward (y_P = y_A - r); +r: dragged back
-    k_deg = drive.coefs.shape[1]
-    breaks, coefs, restart = [drive.start], [], [True]
-    for k in range(drive.coefs.shape[0]):
-        ta, tb = float(drive.breaks[k]), float(drive.breaks[k + 1])
-        c = drive.coefs[k]
-        dc = c[1:] * np.arange(1, k_deg)
-        s0 = 0.0
-        while s0 < tb - ta:
-            h = tb - ta - s0
-            cs = _shift_coefs(c, s0)
-            dcs = _shift_coefs(dc, s0)
-            if side == 0.0:  # free: the first contact with either side of the play
-                hits = [(s, sd) for sd, level in ((-r, yp + r), (r, yp - r))
-                        if (s := _first_root(cs - np.r_[level, np.zeros(k_deg - 1)], h)) is not None]
-                if abs(cs[0] - yp) >= r - CONTACT_M and (dcs[0] > 0) == (cs[0] > yp) and abs(dcs[0]) > MOVING_M_S:
-                    hits.append((0.0, -r if dcs[0] > 0 else r))  # at a side and moving out: taken along now
-                if not hits:
-                    _append(breaks, coefs, restart, ta + s0 + h, np.r_[yp, np.zeros(k_deg - 1)], False)
-                    s0 += h
-                    continue
-                s, sd = min(hits)
-                if s > 0.0:
-                    _append(breaks, coefs, restart, ta + s0 + s, np.r_[yp, np.zeros(k_deg - 1)], False)
-                    restart[-1] = True  # the piston's velocity jumps from 0 where it is taken along
-                    s0 += s
-                side = sd
-                continue
-            # dragged: follow the actuator until its velocity changes sign (at once if it no longer moves out)
-            outward = -side * dcs[0] > 0.0 and abs(dcs[0]) > MOVING_M_S
-            s = 0.0 if not outward else _first_root(dcs, h)
-            end = h if s is None else s
-            _append(breaks, coefs, restart, ta + s0 + end, cs + np.r_[side, np.zeros(k_deg - 1)], False)
-            s0 += end
-            if s is not None:
-                yp = float(np.polyval(cs[::-1], end)) + side
-                side = 0.0
-        restart[-1] = restart[-1] or bool(drive.restart[k + 1])
-    return PiecewisePolynomial(np.array(breaks), np.array(coefs), np.array(restart))
-
-
-def _shift_coefs(c: np.ndarray, d: float) -> np.ndarray:
-    """Coefficients of p(s + d) in powers of s, for p(s) = sum_j c[j] s^j."""
-    n = c.size
-    return np.array([sum(c[j] * math.comb(j, i) * d ** (j - i) for j in range(i, n)) for i in range(n)])
-
-
-def _append(breaks: list, coefs: list, restart: list, t_end: float, c: np.ndarray, flag: bool) -> None:
-    """Append the piece [breaks[-1], t_end] with coefficients ``c`` (merging a vanishing piece)."""
-    if t_end - breaks[-1] <= MERGE_TIME_S:
-        return
-    coefs.append(np.asarray(c, dtype=float))
-    breaks.append(t_end)
-    restart.append(flag)
+    b, c, f = _play_pieces(np.ascontiguousarray(drive.breaks, dtype=float),
+                           np.ascontiguousarray(drive.coefs, dtype=float), np.asarray(drive.restart, dtype=np.bool_),
+                           r, yp)
+    return PiecewisePolynomial(b, c, f)
 
 
 # ----------------------------------------------------------------------------- composed-kernel hooks
