@@ -237,7 +237,11 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     # the residual's dynamic signature from the model's own signals (measured - model; base_resid is model - measured)
     base_model = [w.force + r for w, r in zip(windows, base_resid, strict=True)]
     with progress.phase("diagnose: residual dynamics", unit="fit"):
-        signature = residual_signature(windows, [-r for r in base_resid], base_model, area, base_flows, workers)
+        if structure["n_structured"]:
+            signature = residual_signature(windows, [-r for r in base_resid], base_model, area, base_flows, workers)
+        else:  # the dynamics of a residual are the form of its structure: with none there is nothing to read
+            signature = {"verdict": "not identified",
+                         "reason": "no window's residual is structured (F test): there are no dynamics to identify"}
         progress.note(signature.get("summary") or signature.get("reason", ""))
     structure["parameters_by_kind_median"] = {
         kind: {name: float(np.median([r.entry[name]["median"] for r in base if r.entry["kind"] == kind]))
