@@ -6,23 +6,20 @@ z_k = (log α_V, log p_R)_k. Three levels:
     z_k ~ N(θ_t, Ω)                 windows of one test scatter about the test's parameters (kind of step, ...),
     θ_t ~ N(B x(v_t), Σ)            tests scatter about the population law (test-to-test scatter),
     x(v) = (1, u, …, u^degree[, c]), u = (v - v_c) / v_s,  c = (T - T_c) / T_s,
-
 B a matrix of trend coefficients (degree 1 by default: a straight line in speed of the log parameters, the
 shallow monotone change the paper's Fig. 9 shows), c a covariate the records carry (their mean temperature,
 column ``temperature_C``) where every test has one and they differ; Σ and Ω are 2 x 2 covariances, each an sd
 per parameter [log units] and a correlation. The trend is the drift, Σ the noise between tests, Ω the scatter
 between windows of one test; where no test has two windows Ω and Σ cannot be told apart and Ω is left out (Σ
-holds both).
-Priors: flat on B, half-Cauchy(0, 1) on every sd (Gelman 2006's weakly informative prior for a group-level
-scale), uniform correlations.
+holds both). Priors: flat on B, half-Cauchy(0, 1) on every sd (Gelman 2006's weakly informative prior for a
+group-level scale), uniform correlations.
 
 The data are the stored per-window posteriors, not the records: this is a multilevel, multivariate random-effects
 meta-analysis (Konstantopoulos 2011, Res. Synth. Methods, three-level meta-analysis; Jackson, Riley & White 2011,
 Stat. Med., multivariate meta-analysis), each window's posterior of z summarised by the mean m_k and covariance
 C_k of its draws. Its windows' priors are log-uniform on boxes much wider than the posteriors, hence flat in z,
 so m_k ~ N(z_k, C_k) and the windows of test t are jointly Gaussian:
-
-    (m_k)_{k in t} ~ N(1 ⊗ B x(v_t), blockdiag(C_k + Ω) + 1 1ᵀ ⊗ Σ).
+(m_k)_{k in t} ~ N(1 ⊗ B x(v_t), blockdiag(C_k + Ω) + 1 1ᵀ ⊗ Σ).
 
 Why this method: the windows of one test share their test (rig-A's transients of one test disagree between starts
 from rest and reversals), which a model of independent windows would count as independent tests and so
@@ -31,7 +28,8 @@ and the per-window posteriors of log α_V and log p_R are close to Gaussian wher
 stored draws are not re-fitted, only summarised.
 
 The hyper-posterior is sampled by :func:`~bayesdamper.inference.sampling.sample_posterior` (independent
-ensembles, R-hat across them, τ and ESS rules). A new test at speed v has windows with parameters
+ensembles, R-hat across them, τ and ESS rules) on its compiled density with the sds as log sd
+(:mod:`~bayesdamper.inference.hierarchy_kernel`). A new test at speed v has windows with parameters
 z ~ N(B x(v), Σ + Ω): :meth:`HierarchyFit.new_test` draws them for prediction. Assumed and stated: tests are
 independent given the law (windows sharing stage-1 flow coefficients share that part of their uncertainty), and
 the law's form (a polynomial in speed) holds over the calibrated range.
@@ -44,18 +42,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bayesdamper.inference.hierarchy_kernel import LogSdTarget, hyper_log_density
+
 #: The parameters of the law, in the order of the last axis of every array here.
 NAMES = ("alpha_V", "p_R_Pa")
 #: Scale of the half-Cauchy prior of each scatter sd [log units]: a factor e between tests is a typical scale.
 SCATTER_PRIOR_SCALE = 1.0
 #: Box of each scatter sd [log units]: from 0 (none) to 3 (a factor 20).
 SCATTER_BOUNDS = (0.0, 3.0)
-#: The sampler moves each scatter sd as log sd, from this floor [log units] to the box's top: the hyper-posterior
-#: of a few tests is a funnel whose sds range over decades (3 windows of one damper: 0.006 to 1.25 between the 5th and
-#: 95th percentiles), which a move of one scale crosses slowly (τ above 200 steps), while in log sd its density has
-#: the Jacobian sd and falls off exponentially below the data's resolution. The half-Cauchy's mass below the floor
-#: (about 0.64 · floor / SCATTER_PRIOR_SCALE) is left out.
-LOG_SD_FLOOR = 1e-5
 #: Box of each scatter correlation (a correlation of exactly ±1 makes the covariance singular).
 RHO_BOUND = 0.98
 #: Walkers per ensemble of the hyper-posterior's sampler (at least 2 · ndim + 2).
@@ -193,6 +187,12 @@ class HyperLogPosterior:
         return out
 
     def _batch(self, x: np.ndarray) -> np.ndarray:
+        """The log density of rows inside the box, compiled (:func:`hyper_log_density`)."""
+        return hyper_log_density(np.ascontiguousarray(x, dtype=float), self.m, self.c, self.t, self.design,
+                                 self.within, self.with_prior, SCATTER_PRIOR_SCALE)
+
+    def _batch_numpy(self, x: np.ndarray) -> np.ndarray:
+        """The same as :meth:`_batch` in NumPy (the statement of the model the compiled function follows)."""
         xvx, xvm, mvm, logdet, ok = self._pieces(x)
         sign, ld_x = np.linalg.slogdet(xvx)
         ok &= sign > 0
@@ -225,39 +225,6 @@ class HyperLogPosterior:
         quad = mvm - 2 * np.sum(beta * xvm, axis=1) + np.einsum("wi,wij,wj->w", beta, xvx, beta)
         out = -0.5 * quad - 0.5 * logdet - len(self.m) * math.log(2 * math.pi)
         return np.where(np.isfinite(out) & ok, out, -np.inf)
-
-
-class LogSdTarget:
-    """:class:`HyperLogPosterior` with its sds sampled as log sd: rows u → x (sd = exp u), log density plus the log
-    Jacobian Σ u over the sds (:data:`LOG_SD_FLOOR`)."""
-
-    def __init__(self, target: HyperLogPosterior):
-        self.target = target
-        self.sd = np.array([0, 1] + ([3, 4] if target.within else []))
-        self.lower, self.upper = np.array(target.lower, float), np.array(target.upper, float)
-        self.lower[self.sd] = math.log(LOG_SD_FLOOR)
-        self.upper[self.sd] = np.log(target.upper[self.sd])
-
-    def to_x(self, u: np.ndarray) -> np.ndarray:
-        x = np.array(u, float, ndmin=2)
-        x[:, self.sd] = np.exp(x[:, self.sd])
-        return x
-
-    def to_u(self, x: np.ndarray) -> np.ndarray:
-        u = np.array(x, float, ndmin=2)
-        u[:, self.sd] = np.log(np.maximum(u[:, self.sd], LOG_SD_FLOOR))
-        return u
-
-    def batch(self, u: np.ndarray) -> np.ndarray:
-        u = np.atleast_2d(np.asarray(u, float))
-        out = np.full(len(u), -np.inf)
-        inside = np.all(np.isfinite(u), axis=1) & np.all((u > self.lower) & (u < self.upper), axis=1)
-        if np.any(inside):
-            out[inside] = self.target.batch(self.to_x(u[inside])) + np.sum(u[inside][:, self.sd], axis=1)
-        return out
-
-    def __call__(self, u: np.ndarray) -> float:
-        return float(self.batch(np.asarray(u)[None, :])[0])
 
 
 def _law_design(speed, covariate, v_c: float, v_s: float, degree: int, cov: dict | None) -> np.ndarray:

@@ -4,8 +4,9 @@ emcee's walkers are not independent chains, so R-hat is computed across several 
 started* ensembles, each with its own random generator and its own dispersed start. The stopping rule
 is the integrated autocorrelation time τ: every ensemble runs until its post-burn-in chain is longer
 than ``TAU_FACTOR`` τ for every parameter and the largest τ, which sets that length, has settled (changed by
-less than ``TAU_RTOL`` between checks). Only then are the rank-normalised R-hat (across ensembles) and the bulk ESS checked against
-``GOOD_RHAT`` and ``MIN_ESS``. A run that exhausts its step budget first is reported as not converged.
+less than ``TAU_RTOL`` between checks). Only then are the rank-normalised R-hat (across ensembles) and the bulk
+ESS checked against ``GOOD_RHAT`` and ``MIN_ESS``. A run that exhausts its step budget first is reported as not
+converged.
 """
 
 from __future__ import annotations
@@ -419,7 +420,8 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         tau = np.max([_tau(c) for c in kept], axis=0)
         long_enough = bool(np.all(kept.shape[1] > settings.tau_factor * tau))
         with np.errstate(invalid="ignore"):
-            settled = tau_prev is not None and bool(abs(np.max(tau) - np.max(tau_prev)) < settings.tau_rtol * np.max(tau))
+            settled = tau_prev is not None and bool(abs(np.max(tau) - np.max(tau_prev))
+                                                    < settings.tau_rtol * np.max(tau))
         tau_prev = tau
         rhat = post.rhat_across_ensembles(kept)
         ess = post.ess_bulk(kept)

@@ -16,8 +16,6 @@ where the piston's velocity jumps: a restart break) and follows the actuator unt
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
