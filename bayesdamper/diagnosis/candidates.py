@@ -182,7 +182,7 @@ def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict,
 def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fixed: dict,
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
               idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
-              grid_only: bool = False) -> CandidateFit:
+              grid_only: bool = False, intervals_to: float = math.inf) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -210,6 +210,10 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     grid_only : bool
         Score the grid's best point without refining it and without intervals (a screen: later rounds rank the
         remaining candidates this way before re-fitting the best jointly with the selected effects).
+    intervals_to : float
+        Intervals only for a fit whose ΔBIC_eff is at most this (the loop's first round: the selection threshold;
+        a candidate that cannot be selected is reported with its optimum alone, sparing two re-fits of every
+        window per parameter).
     """
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
@@ -333,16 +337,17 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                             tuple(s.label for s in specs if s.label in new))
     # Laplace interval on the profile log-likelihood  l(z) = -D(z)/2  (transformed scale)
     sd = []
-    for j in range(0 if grid_only else len(flat)):
+    with_intervals = not grid_only and d_hat + n_new * math.log(n_total) <= intervals_to
+    for j in range(len(flat) if with_intervals else 0):
         h = 0.02 * (hi[j] - lo[j])
         zp, zm = z_hat.copy(), z_hat.copy()
         zp[j] = min(z_hat[j] + h, hi[j])
         zm[j] = max(z_hat[j] - h, lo[j])
         curv = (objective(zp) - 2 * d_hat + objective(zm)) / (0.5 * (zp[j] - zm[j])) ** 2 / 2
         sd.append(1 / math.sqrt(curv) if curv > 0 else float("inf"))
-    if marginal and len(flat) > 1 and not grid_only:
+    if marginal and len(flat) > 1 and with_intervals:
         sd = list(marginal_sds(objective, z_hat, lo, hi, np.array(sd)))
-    sd += [float("inf")] * (len(flat) - len(sd))  # a screen by the grid alone has no intervals
+    sd += [float("nan")] * (len(flat) - len(sd))  # a screen by the grid alone, or a hopeless fit: no intervals
     key = tuple(np.round(np.clip(z_hat, lo, hi), 6))
     if idx is None and key in detail and cache.get(key, INFEASIBLE) < INFEASIBLE:
         xs, resid = detail[key]  # every window was re-fitted there by the objective
@@ -355,7 +360,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     for j, ((spec, p), z, s_) in enumerate(zip(flat, z_hat, sd, strict=True)):
         zl = max(z - 1.645 * s_, lo[j]) if math.isfinite(s_) else lo[j]
         zh = min(z + 1.645 * s_, hi[j]) if math.isfinite(s_) else hi[j]
-        ends = sorted((_untransform(p, zl), _untransform(p, zh)))
+        ends = sorted((_untransform(p, zl), _untransform(p, zh))) if not math.isnan(s_) else [None, None]
         key = p.name if len(specs) == 1 else f"{spec.label}.{p.name}"
         out_params[key] = {"median": _untransform(p, z), "lo": ends[0], "hi": ends[1]}
         scales[key] = {"z": float(z), "sd": float(s_), "log": p.log, "sign": p.sign,

@@ -210,7 +210,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
             # after the first round: screened with the selected effects held at their values, by the grid alone ...
             fits.append(fit_joint(engine, [specs[label]], {}, fixed, current["sse"], n_eff, flow_for,
-                                  effect_argument, grid_only=bool(sel_specs)))
+                                  effect_argument, grid_only=bool(sel_specs), intervals_to=SELECT_DELTA_BIC))
             progress.advance()
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
