@@ -62,3 +62,39 @@ def test_drift_summary_leaves_out_posteriors_at_a_prior_bound_when_enough_remain
     assert abs(d["slope_per_m_s"]["median"] - 1e4) < 0.05 * 1e4
     two_left = [entry(1.0e-3, False), entry(1.2e-3, True), entry(1.4e-3, True), entry(1.5e-3, False)]
     assert drift_summary(two_left, 0.9, 0)["alpha_V"]["n_transients"] == 4
+
+
+def _cycle_entries(test: str, n: int, value, sd: float, rng, converged: bool = True) -> list[dict]:
+    """Entries of ``n`` windows of cycles of one 120 s record; ``value(t_mid)`` the true C_L12 at the window's
+    middle, observed with posterior sd ``sd``; α_V constant."""
+    out = []
+    for k in range(n):
+        t0, t1 = 120.0 * k / n, 120.0 * (k + 1) / n
+        mid = 0.5 * (t0 + t1)
+        out.append({"id": f"{test}_w{k}", "test": test, "kind": "cycles", "converged": converged,
+                    "t_start_s": t0, "window": {"t_end_s": t1},
+                    "posterior_mean": {"alpha_V": 40.0 + rng.normal(0.0, 1.0), "C_L12": value(mid) + rng.normal(0, sd)},
+                    "posterior_sd": {"alpha_V": 1.0, "C_L12": sd}})
+    return out
+
+
+def test_slow_drift_within_a_record_is_found_against_time_and_temperature():
+    """A flow coefficient falling 20 % over a 120 s record (the fluid warming from 30 to 50 °C), eight windows with
+    posterior sds of 1 % of it: the change over the record is recovered within its interval against time and
+    against temperature, and is credible; α_V, constant, is not credibly drifting; a record of two windows and
+    unconverged windows give no trend."""
+    from bayesdamper.inference.drift import record_drift
+
+    rng = np.random.default_rng(5)
+    c0 = 2.5e10
+    entries = _cycle_entries("long", 8, lambda t: c0 * (1.0 - 0.2 * t / 120.0), 0.01 * c0, rng)
+    entries += _cycle_entries("short", 2, lambda t: c0, 0.01 * c0, rng)
+    entries += _cycle_entries("failed", 4, lambda t: c0, 0.01 * c0, rng, converged=False)
+    temps = {e["id"]: 30.0 + 20.0 * (0.5 * (e["t_start_s"] + e["window"]["t_end_s"])) / 120.0 for e in entries}
+    out = record_drift(entries, temps, 0.9, seed=0)
+    assert set(out) == {"long"}
+    for axis in ("time_s", "temperature_C"):
+        t = out["long"]["trends"][axis]["C_L12"]
+        truth = -0.2 * (7 / 8) / (1.0 - 0.1)  # change between the first and last mid-time over the mean
+        assert t["credible_nonzero"] and t["change"]["lo"] < truth < t["change"]["hi"], (axis, t["change"])
+    assert not out["long"]["trends"]["time_s"]["alpha_V"]["credible_nonzero"]

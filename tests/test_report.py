@@ -485,3 +485,21 @@ def test_report_command_on_a_tiny_sine(tmp_path):
     win = page.table("cycles")[1]
     assert win[0] == "sine_w0" and win[2] == f"{entry['window']['t_start_s']:.3f} – {entry['window']['t_end_s']:.3f}"
     assert summary["mode_reason"] in text and "transient (step)" not in page.cells
+
+
+def test_drift_within_a_record_is_tabled(tmp_path):
+    """A record's slow drift (summary["drift_within_records"]): one row per record, axis and parameter, the change
+    over the record in % with its interval, and whether it is credible."""
+    s = _cycles()
+    trend = {"slope": {"median": -1.0, "lo": -1.2, "hi": -0.8}, "credible_nonzero": True,
+             "change": {"median": -0.19, "lo": -0.23, "hi": -0.15}}
+    flat = {"slope": {"median": 0.0, "lo": -0.1, "hi": 0.1}, "credible_nonzero": False,
+            "change": {"median": 0.001, "lo": -0.02, "hi": 0.02}}
+    s["drift_within_records"] = {"sine": {"n_windows": 4, "trends": {"time_s": {"C_L12": trend, "alpha_V": flat},
+                                                                     "temperature_C": {"C_L12": trend}}}}
+    _write_figures(tmp_path, s)
+    render_report(s, None, tmp_path)
+    _, page = parse(tmp_path / "report.html")
+    rows = page.table("change over the record (90 %)")
+    assert rows[1] == ["sine", "4", "time", "C_L12", "-19 % [-23, -15]", "yes"]
+    assert rows[2][3:] == ["α_V", "+0 % [-2, +2]", "no"] and rows[3][2] == "temperature"

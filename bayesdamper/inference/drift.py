@@ -26,12 +26,22 @@ N_SLOPE_DRAWS = 20000
 
 def fit_drift(speed: np.ndarray, mean: np.ndarray, sd: np.ndarray, credible_mass: float = 0.9,
               seed: int = 0) -> dict:
-    """Posterior of the slope of a parameter against piston speed.
+    """Posterior of the slope of a parameter against piston speed (:func:`fit_trend` with ``x`` the speed [m/s];
+    the slope is returned as ``slope_per_m_s``)."""
+    res = fit_trend(speed, mean, sd, credible_mass, seed)
+    res["slope_per_m_s"] = res.pop("slope")
+    return res
+
+
+def fit_trend(x: np.ndarray, mean: np.ndarray, sd: np.ndarray, credible_mass: float = 0.9,
+              seed: int = 0) -> dict:
+    """Posterior of the slope of a parameter against a covariate x (the trend model of the module docstring with
+    x in place of the speed).
 
     Parameters
     ----------
-    speed : ndarray, shape (n,)
-        Piston speed |v_k| [m/s].
+    x : ndarray, shape (n,)
+        The covariate of each estimate (piston speed [m/s], time [s], temperature [°C], ...).
     mean, sd : ndarray, shape (n,)
         Posterior mean and standard deviation of the parameter for each transient.
     credible_mass : float
@@ -42,14 +52,14 @@ def fit_drift(speed: np.ndarray, mean: np.ndarray, sd: np.ndarray, credible_mass
     Returns
     -------
     dict
-        ``{"slope_per_m_s": {"median", "lo", "hi"}, "intercept": {...}, "credible_nonzero": bool,
-        "intrinsic_scatter": float}``; slope in parameter units per (m/s).
+        ``{"slope": {"median", "lo", "hi"}, "intercept": {...}, "credible_nonzero": bool,
+        "intrinsic_scatter": float}``; slope in parameter units per unit of x.
     """
-    v = np.asarray(speed, float)
+    v = np.asarray(x, float)
     m = np.asarray(mean, float)
     s = np.asarray(sd, float)
     if v.size < 3 or np.ptp(v) == 0:
-        raise ValueError("a drift trend needs at least three transients at two or more speeds")
+        raise ValueError("a trend needs at least three estimates at two or more values of its covariate")
     x = np.column_stack([np.ones_like(v), v - v.mean()])
     spread = max(float(np.std(m)), float(np.median(s)), 1e-300)
     grid = np.concatenate([[0.0], np.geomspace(1e-4 * spread, 10 * spread, N_SCATTER_GRID)])
@@ -85,7 +95,7 @@ def fit_drift(speed: np.ndarray, mean: np.ndarray, sd: np.ndarray, credible_mass
                 "hi": float(np.quantile(d, hi_q))}
 
     sl = summ(slope)
-    return {"slope_per_m_s": sl, "intercept": summ(intercept),
+    return {"slope": sl, "intercept": summ(intercept),
             "credible_nonzero": bool(sl["lo"] > 0 or sl["hi"] < 0),
             "intrinsic_scatter": float(np.sum(p * grid))}
 
@@ -112,4 +122,48 @@ def drift_summary(entries: list[dict], credible_mass: float, seed: int) -> dict:
                 res["by_direction"][str(d)] = fit_drift(v[sel], m[sel], s[sel], credible_mass, seed)
         res["n_transients"] = int(len(ok))
         out[name] = res
+    return out
+
+
+#: Fewest converged windows of one record for a trend within it.
+MIN_RECORD_WINDOWS = 3
+
+
+def record_drift(entries: list[dict], covariates: dict[str, np.ndarray] | None = None, credible_mass: float = 0.9,
+                 seed: int = 0) -> dict:
+    """Slow drift within long records: for every record with at least :data:`MIN_RECORD_WINDOWS` converged
+    windows of cycles, the trend of each sampled parameter (α_V, p_R, the flow coefficients) against the windows'
+    mid-times [s] and, where ``covariates`` maps a window id to its mean temperature [°C], against it too.
+
+    The windows of one record share its speed, so a trend among them is the record's own drift (the fluid warming
+    over minutes, say), not the speed's. Each trend is :func:`fit_trend`'s, reported with the change it makes over
+    the record relative to the parameter's mean (``change``, a fraction).
+    """
+    out = {}
+    by_test: dict[str, list[dict]] = {}
+    for e in entries:
+        if e.get("kind") == "cycles" and e.get("converged"):
+            by_test.setdefault(str(e.get("test") or e["id"]), []).append(e)
+    for test, es in by_test.items():
+        if len(es) < MIN_RECORD_WINDOWS:
+            continue
+        t_mid = np.array([0.5 * (e["t_start_s"] + e["window"]["t_end_s"]) for e in es])
+        axes = {"time_s": t_mid}
+        temp = [covariates.get(e["id"]) for e in es] if covariates else []
+        if temp and all(v is not None for v in temp) and np.ptp(temp) > 0:
+            axes["temperature_C"] = np.array(temp, float)
+        names = [n for n in es[0]["posterior_mean"] if all(n in e["posterior_mean"] for e in es)]
+        rec = {"n_windows": len(es), "t_mid_s": t_mid.tolist(), "trends": {}}
+        if "temperature_C" in axes:
+            rec["temperature_C"] = axes["temperature_C"].tolist()
+        for axis, x in axes.items():
+            rec["trends"][axis] = {}
+            for name in names:
+                m = np.array([e["posterior_mean"][name] for e in es])
+                s = np.array([e["posterior_sd"][name] for e in es])
+                res = fit_trend(x, m, s, credible_mass, seed)
+                scale = abs(float(np.mean(m))) or 1.0
+                res["change"] = {k: float(v * np.ptp(x) / scale) for k, v in res["slope"].items()}
+                rec["trends"][axis][name] = res
+        out[test] = rec
     return out

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from bayesdamper._version import __version__
 from bayesdamper.io.outputs import atomic_write_bytes
-from bayesdamper.report.html_law import conditions_block, law_table, prediction_check
+from bayesdamper.report.html_law import conditions_block, law_table, prediction_check, record_drift_table
 from bayesdamper.report.html_parts import (
     _PARAMS,
     _STATIC_UNITS,
@@ -392,6 +392,7 @@ def _figures_section(summary: Mapping, out_dir: Path) -> str:
                "real drift.</p>"
                + _drift_table(summary.get("drift"), mass)
                + law_table(summary.get("drift_model"), mass)
+               + record_drift_table(summary.get("drift_within_records"), mass)
                + _figures(out_dir, figs.get("figure9_drift"), "Figure 9: p_R and 100/α_V against piston speed",
                           "Figure 9 was not drawn (the run used --no-figures)."))
     return "".join(out)

@@ -131,3 +131,25 @@ def conditions_block(c: Mapping | None) -> str:
             "or vary with the condition (weighted straight line against it). The full account is "
             "<code>conditions.json</code> one folder up.</p>"
             + (_table(["parameter", "per condition", "verdict"], rows, left=3) if rows else ""))
+
+
+def record_drift_table(drift: Mapping | None, mass: float) -> str:
+    """Slow drift within long records: per record and parameter the change over the record (a % of the parameter's
+    mean, with its interval) against the windows' time and, where the records carry one, their temperature."""
+    if not drift:
+        return ""
+    rows = []
+    for test, rec in drift.items():
+        for axis, trends in (rec.get("trends") or {}).items():
+            for name, t in trends.items():
+                rows.append([_e(test), str(rec.get("n_windows", "")), _e("time" if axis == "time_s" else
+                                                                         "temperature"),
+                             _e(_LABEL.get(name, name)), _pct_interval(t.get("change")),
+                             "yes" if t.get("credible_nonzero") else "no"])
+    pct = f"{round(100 * mass)} %"
+    return ("<h3>Drift within a record</h3><p>The windows of one long record share its speed: a trend among them is "
+            "the record's own slow drift (the fluid warming, say). Change over the record, as a share of the "
+            f"parameter's mean, with its {pct} interval, from a straight line in the windows' mid-time (and mean "
+            "temperature, where the records have a temperature_C column).</p>"
+            + _table(["record", "windows", "against", "parameter", f"change over the record ({pct})",
+                      "credible"], rows))

@@ -21,7 +21,7 @@ import numpy as np
 
 from bayesdamper.core.errors import SettingsError
 from bayesdamper.inference.cut import COUPLINGS
-from bayesdamper.inference.drift import drift_summary
+from bayesdamper.inference.drift import drift_summary, record_drift
 from bayesdamper.inference.likelihood import make_noise_model
 from bayesdamper.inference.sampling import SamplerSettings
 from bayesdamper.inference.stage2 import StageTwoSettings, WindowResult
@@ -65,6 +65,21 @@ def dataset_folders(datasets) -> list[str]:
             raise SettingsError(f"{datasets[j].path}, {datasets[i].path}: both data sets would be written to "
                                 f"{n!r}; give them distinct [damper] names or folder names")
     return names
+
+
+def window_temperatures(ds, windows) -> dict[str, float]:
+    """Each window's mean measured temperature [°C] over its samples, where its record has a ``temperature_C``
+    column."""
+    records = {r.name: r for r in ds.records}
+    out = {}
+    for w in windows:
+        rec = records.get(w.test)
+        if rec is None or getattr(rec, "temperature", None) is None:
+            continue
+        inside = (rec.time >= w.time[0]) & (rec.time <= w.time[-1])
+        if np.any(inside):
+            out[w.id] = float(np.mean(rec.temperature[inside]))
+    return out
 
 
 @dataclass
@@ -184,6 +199,7 @@ def _identify_one(job: _Job, settings: StageTwoSettings, *, seed: int, credible_
                             if static is not None and static.offset is not None else None),
         "segments": entries,
         "drift": drift_summary(entries, credible_mass, seed) if len(entries) >= 3 else {},
+        "drift_within_records": record_drift(entries, window_temperatures(ds, job.transients), credible_mass, seed),
         "settings": settings.as_dict(), "seed": seed, "tmax_s": tmax, "provenance": prov,
         "n_converged": int(sum(e["converged"] for e in entries)),
         "data": data_table(ds, job.segs),
