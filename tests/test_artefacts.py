@@ -99,3 +99,29 @@ def test_offset_larger_than_the_slowest_plateau_force_is_recovered():
     f0, se = fit.force(area)
     assert fit.explains and se < 1.0 and abs(f0 - offset) < TOL_SE * se
     np.testing.assert_allclose(fit.coefficients, PAPER_FLOW.as_array(), rtol=0.05)
+
+
+#: Effects the diagnosis may name on this data besides the artefacts: the two-state physics eq. (7) lacks (the
+#: absolute-pressure state, the library's ``accumulator``).
+TWO_STATE_PHYSICS = {"accumulator"}
+
+
+@pytest.mark.confusion
+def test_the_diagnosis_names_the_offset_and_the_hum(artefacts, tmp_path, capsys):
+    """The whole loop on the artefacts' data: both artefacts are findings (the offset as ``load_cell_offset`` near
+    80 N, within TOL_SE of its stage-1 standard error or 10 %; the hum as ``mains_interference``), nothing else but the
+    two-state physics, and the pooled J at least halved."""
+    from bayesdamper.cli import main
+
+    folder, _, _ = artefacts
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(folder), "--out", str(out), "--workers", "2", "--no-figures"]) == 0
+    d = json.loads((out / "diagnosis.json").read_text())
+    with capsys.disabled():
+        print(f"\n[artefacts] selected {d['selected']}, J {d['baseline']['J_pooled']:.4f} -> "
+              f"{d['final']['J_pooled']:.4f}, {d['wall_time_s']:.0f} s")
+    assert {"load_cell_offset", "mains_interference"} <= set(d["selected"])
+    assert set(d["selected"]) <= {"load_cell_offset", "mains_interference"} | TWO_STATE_PHYSICS
+    offset = d["selected_params"]["load_cell_offset"]["offset_N"]
+    assert abs(offset - TRUE_OFFSET_N) < max(TOL_SE * MAX_OFFSET_SE_N, 0.1 * TRUE_OFFSET_N), offset
+    assert d["final"]["J_pooled"] <= 0.5 * d["baseline"]["J_pooled"]
