@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bayesdamper.inference.hierarchy_kernel import LogSdTarget, hyper_log_density
+from bayesdamper.inference.hierarchy_kernel import LOG_SD_FLOOR, hyper_log_density
+from bayesdamper.inference.logscale import LogScaled
 
 #: The parameters of the law, in the order of the last axis of every array here.
 NAMES = ("alpha_V", "p_R_Pa")
@@ -445,17 +446,16 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
     x0 = np.clip(x0, lower + 1e-6, upper - 1e-6)
     best = minimize(neg, x0, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-6, "fatol": 1e-8})
     start = np.clip(best.x if best.fun < neg(x0) else x0, lower + 1e-4, upper - 1e-4)
-    logsd = LogSdTarget(target)
-    # the start in log sd: a mode on the boundary sd = 0 is no mode of the log-sd density (its Jacobian vanishes
-    # there); start at least at a hundredth of the sd the window means scatter by
+    logsd = LogScaled(target, [0, 1] + ([3, 4] if target.within else []), lower, upper, LOG_SD_FLOOR)
+    # the start in log sd at least at a hundredth of the means' scatter (sd = 0 is no mode of the log-sd density)
     u0 = logsd.to_u(np.maximum(start, np.r_[0.01 * sd0, -1.0, (0.01 * sd0) if target.within else [],
-                                            [-1.0] if target.within else []]))[0]
+                                            [-1.0] if target.within else []]))
     u0 = np.clip(u0, logsd.lower + 1e-4, logsd.upper - 1e-4)
     settings = sampler or SamplerSettings(n_walkers=max(N_WALKERS, 2 * start.size + 2), move="de+laplace",
                                           check_every=250)
     res = sample_posterior(logsd, u0, logsd.lower, logsd.upper, settings, seed, progress)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 29]))
-    scatter = logsd.to_x(res.flat())
+    scatter = logsd.to_theta(res.flat())
     if len(scatter) > MAX_DRAWS:  # an even thinning of the chains: the stored law stays small
         scatter = scatter[np.linspace(0, len(scatter) - 1, MAX_DRAWS).round().astype(int)]
     flat = np.column_stack([target.trend_given(scatter, rng), scatter])

@@ -29,6 +29,7 @@ import numpy as np
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.inference import posterior as post
 from bayesdamper.inference.likelihood import cost_j
+from bayesdamper.inference.logscale import LogScaled
 from bayesdamper.inference.pointfit import fit_point
 from bayesdamper.inference.priors import ParameterSpace
 from bayesdamper.inference.problem import WindowProblem
@@ -191,7 +192,14 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
     near_bound = cov is None or bool(np.any(gap < JOINT_BOUND_SDS * np.sqrt(np.diag(cov))[:2]))
     sampler = replace(settings.sampler, n_walkers=max(settings.sampler.n_walkers, 2 * x_start.size + 2),
                       **({} if near_bound else {"move": JOINT_MOVE, "check_every": JOINT_CHECK_EVERY}))
-    res = sample_posterior(target, x_start, lower, upper, sampler, seed_t, progress, scale=cov)
+    if coupling == "joint" and not prior.gaussian:  # flat flow priors on [0, bound]: sampled as their logs
+        logs = LogScaled(target, np.arange(3, 7), lower, upper)
+        res = sample_posterior(logs, logs.to_u(x_start), logs.lower, logs.upper, sampler, seed_t, progress,
+                               scale=logs.covariance(x_start, cov))
+        res.log_prob = res.log_prob - np.sum(res.chain[..., logs.dims], axis=-1)  # the density of θ, not of u
+        res.chain = logs.to_theta(res.chain)
+    else:
+        res = sample_posterior(target, x_start, lower, upper, sampler, seed_t, progress, scale=cov)
     if coupling == "cut":
         res = cut.propagate(res, logpost, theta1, fit, int(np.random.SeedSequence([seed_t, 1]).generate_state(1)[0]))
     flat = res.flat()
