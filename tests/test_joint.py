@@ -178,3 +178,18 @@ def test_propagated_interval_covers_a_start_from_rest_the_conditional_one_misses
     width = cond["alpha_V"]["hi"] - cond["alpha_V"]["lo"]
     assert abs(cond["alpha_V"]["median"] - 90.0) > 2 * width
     assert jnt["J"] <= (CUT_J_SLACK if coupling == "cut" else 1.001) * jnt["ls"]["J"]
+
+
+def test_only_flow_coefficients_cut_by_zero_are_sampled_as_logs():
+    """A flow coefficient whose MAP lies within JOINT_BOUND_SDS Laplace sd of 0 is sampled as its log; one far from
+    0 stays linear (a straight C_L-C_Q ridge would bend in the log); without a covariance every one is logged."""
+    from bayesdamper.inference.identify import FLOW_DIMS, JOINT_BOUND_SDS, _cut_by_zero
+
+    x = np.array([3.5, 12.6, 0.0, 2.4e10, 4.3e16, 1.0e8, 5.1e16])
+    lower = np.zeros(7)
+    sd = np.array([1e-3, 1e-3, 300.0, 6e8, 5e13, 1.0e8, 6e13])  # CL21: MAP 1 sd above 0
+    cov = np.diag(sd**2)
+    assert list(_cut_by_zero(x, lower, cov)) == [5]
+    cov[5, 5] = (x[5] / (1.01 * JOINT_BOUND_SDS)) ** 2  # just beyond the rule's reach
+    assert list(_cut_by_zero(x, lower, cov)) == []
+    assert list(_cut_by_zero(x, lower, None)) == list(FLOW_DIMS)

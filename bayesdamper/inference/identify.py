@@ -60,6 +60,8 @@ JOINT_CHECK_EVERY = 50
 #: more) and the independence moves are dropped for plain DE: on rig-A's low-speed reversals (MAP at the 10 MPa
 #: bound) they were accepted 8 % of the time and τ was 120 steps, DE alone 26 % and 65 steps.
 JOINT_BOUND_SDS = 3.0
+#: Entries of the joint vector that are flow coefficients (after log α_V, log p_R and Δp0).
+FLOW_DIMS = np.arange(3, 7)
 
 
 def identify_window(window, damper: DamperConstants, flow: FlowCoefficients | None, settings: StageTwoSettings,
@@ -134,6 +136,21 @@ def input_error(jp, window, theta: np.ndarray, force: np.ndarray | None, noise) 
             "replicates": len(diffs)}
 
 
+def _cut_by_zero(x: np.ndarray, lower: np.ndarray, cov: np.ndarray | None) -> np.ndarray:
+    """The flow coefficients (entries of ``x``) whose Laplace approximation the bound 0 cuts: MAP within
+    :data:`JOINT_BOUND_SDS` sd of it (all of them without a covariance).
+
+    Those are sampled as their logs (:class:`LogScaled`): a posterior pressed against 0 over decades is a funnel on
+    its own scale and smooth in its log. The others stay linear: a laminar and a quadratic coefficient that one
+    speed per direction cannot separate lie on a straight ridge (C_L v + C_Q v² fixed, correlation -1.000 on
+    triangular records), which the log bends into a curve that neither the independence moves nor DE follow.
+    """
+    if cov is None:
+        return FLOW_DIMS
+    sd = np.sqrt(np.diag(cov))[FLOW_DIMS]
+    return FLOW_DIMS[x[FLOW_DIMS] - lower[FLOW_DIMS] < JOINT_BOUND_SDS * sd]
+
+
 def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
                     prior, effects=None) -> WindowResult:
     from bayesdamper.inference import cut, joint
@@ -192,8 +209,9 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
     near_bound = cov is None or bool(np.any(gap < JOINT_BOUND_SDS * np.sqrt(np.diag(cov))[:2]))
     sampler = replace(settings.sampler, n_walkers=max(settings.sampler.n_walkers, 2 * x_start.size + 2),
                       **({} if near_bound else {"move": JOINT_MOVE, "check_every": JOINT_CHECK_EVERY}))
-    if coupling == "joint" and not prior.gaussian:  # flat flow priors on [0, bound]: sampled as their logs
-        logs = LogScaled(target, np.arange(3, 7), lower, upper)
+    logged = _cut_by_zero(x_start, lower, cov) if coupling == "joint" and not prior.gaussian else []
+    if len(logged):  # flat flow priors on [0, bound] that the bound cuts: sampled as their logs
+        logs = LogScaled(target, logged, lower, upper)
         res = sample_posterior(logs, logs.to_u(x_start), logs.lower, logs.upper, sampler, seed_t, progress,
                                scale=logs.covariance(x_start, cov))
         res.log_prob = res.log_prob - np.sum(res.chain[..., logs.dims], axis=-1)  # the density of θ, not of u
@@ -232,6 +250,7 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
         # makes the intervals
         "window_scale_ratio": logpost.window_scale(x_map, prior.noise.phi) / prior.noise.sigma_e,
         "sampler": sampler.as_dict(),
+        "sampled_as_log": [space.names[d] for d in logged],
     }
     if code == joint.AR1:
         entry["phi"] = summarise(phys[:, -1], settings.credible_mass)
