@@ -155,6 +155,8 @@ CASES = {
     "SLOW-1C": RecordCase("rig-A", tuple(sine(2e-3, m.f_lo, 1) for m in SLOW), 200.0, 10.0, force_step=5.0,
                           displacement_step=1e-6),
     "SLOW-DN": RecordCase("rig-A", SLOW, 100.0, 15.0, displacement_sd=30e-6),
+    # an ordinary LVDT on the slow sines: 1 µm displacement noise, 10 N white force noise, 200 Hz
+    "SLOW-LVDT": RecordCase("rig-A", SLOW, 200.0, 10.0, displacement_sd=1e-6),
     "SLOW-5MM": RecordCase("rig-A", SLOW_5MM, 100.0, 15.0, 0.9, displacement_step=2e-6),
     "SLOW-STOP": RecordCase("rig-A", SLOW, 200.0, 15.0, stop="abrupt", hold_s=6.0),
     "SLOW-REST": RecordCase("rig-A", SLOW, 100.0, 15.0, start="rest", hold_s=3.0),

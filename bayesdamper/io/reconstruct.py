@@ -2,23 +2,30 @@
 
 An interpolating spline through noisy samples turns displacement noise σ into velocity noise of about σ × sample
 rate (1 µm at 200 Hz: 0.2 mm/s, the paper's slowest speeds). :func:`reconstruct_input` fits a penalised quintic
-spline instead, every setting taken from the record:
+spline instead (:mod:`bayesdamper.io.pspline`), every setting taken from the record:
 
 * **noise** σ̂: white noise gives Var(Δᵏy) = C(2k, k) σ² for the k-th differences at every k; a smooth signal
   sampled above its band adds (2 sin(ωΔt/2))ᵏ A, which falls with k: σ̂ is the smallest estimate over k;
 * **ADC step** q: the values on a grid (:func:`detect_adc_step`). Moving faster than a step per sample, the
   quantisation error is white (in σ̂, at least q/√12); slower, it is a staircase (``_staircase``);
-* **fit**: a quintic B-spline (velocity C³) minimising Σ (y_i - f(t_i))² + λ ∫ (f⁽ᴹ⁾)² dt, M = ``PENALTY_ORDER``,
-  with a knot every p samples, p doubled while λ exceeds ``LOG_LAMBDA_MAX``, halved below ``LOG_LAMBDA_RESOLVED``;
-* **λ** minimises Mallows' C_p = RSS + 2 σ² edf (an unbiased estimate of the displacement error given σ; edf,
-  the smoother's trace, from the Toeplitz symbols of the banded matrices). C_p follows a staircase (not white):
-  there λ is raised until RSS ≥ (n - edf)(q²/12 + σ_n²), the staircase's own residual.
+* **fit**: a quintic B-spline (velocity C³) minimising Σ (y_i - f(t_i))² + λ ∫ (f⁽ᴹ⁾)² dt, M = ``PENALTY_ORDER``;
+* **λ** minimises Mallows' C_p = RSS + 2 σ² edf (an unbiased estimate of the displacement error given σ). C_p
+  follows a staircase (not white): there λ is raised until RSS ≥ (n - edf)(q²/12 + σ_n²), the staircase's own
+  residual;
+* **a periodic record** (a sine, :mod:`bayesdamper.io.harmonic`): a spline passes the noise of its whole band; a
+  test that repeats its motion lets the noise be averaged over every cycle. The record is fitted as a drifting
+  mean plus a Fourier series of its fundamental (K harmonics by BIC, f by least squares, over the moving part)
+  and the spline smooths the rest (measured minus harmonic part: what does not repeat), or the rest is its mean
+  where C_p finds it noise. Kept where it describes the record with fewer edf than the spline alone: a record that
+  starts or stops at rest keeps the spline alone (the harmonic part would continue into the rests). On an exact
+  sine the velocity error is ωσ√(3/N) over N samples (tests/test_reconstruct.py).
 
 Clean data (σ̂ below ``CLEAN_FRACTION`` of the stroke) are interpolated (quintic, not-a-knot). A measured velocity
 channel is compared with the reconstruction (gain, lag, offset) and fitted jointly (weights 1/σ², 1/σ̂_v²) if
 they agree. The velocity error is a seeded parametric bootstrap (the reconstruction plus noise, re-quantised on
-the ADC grid at a random offset, refitted at the same knots and λ): it covers the noise and the smoothing bias
-of smooth motion but not all of the rounding of an abrupt start or stop (tests/test_reconstruct.py).
+the ADC grid at a random offset, refitted the same way: the harmonic part with its K, f refined, the spline at the
+same knots and λ): it covers the noise and the smoothing bias of smooth motion but not all of the rounding of an
+abrupt start or stop (tests/test_reconstruct.py).
 
 ``breaks``/``coefs`` are the local power basis of :class:`bayesdamper.physics.excitation.PiecewisePolynomial`.
 """
@@ -29,20 +36,15 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import sparse
-from scipy.interpolate import BSpline, PPoly, make_interp_spline
-from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+from scipy.interpolate import make_interp_spline
+from scipy.linalg import cho_solve_banded
 
 from bayesdamper.core.errors import DataError
+from bayesdamper.io.harmonic import HarmonicFit, fit_harmonic, moving_span, piecewise, refit
+from bayesdamper.io.pspline import PENALTY_ORDER, SPLINE_DEGREE, Smoother, power_basis, smooth
 
 __all__ = ["InputReconstruction", "bootstrap_inputs", "detect_adc_step", "estimate_noise_sd", "reconstruct_input"]
 
-#: Spline degree: quintic, the velocity C³: the kernels' RODAS4 steps cross the pieces freely.
-SPLINE_DEGREE = 5
-#: Order M of the penalty ∫ (f⁽ᴹ⁾)². 4 (cubics unpenalised) gave 1.2-2x less rms velocity error than 3 (the
-#: classical quintic smoothing spline) on sines, sweeps and random motion, the same on stops, and was steadier
-#: than 5 (2x worse on a 5 µm-ADC sine); measured on the cases of tests/test_reconstruct.py.
-PENALTY_ORDER = 4
 #: Highest difference order of the noise estimate: (2 sin(ωΔt/2))ᵏ / √C(2k, k) ≈ 1e-7 at k = 10 for a 5 Hz sine
 #: at 100 Hz (ωΔt = 0.31): even that signal adds < 1e-9 m per mm of amplitude to σ̂.
 MAX_DIFFERENCE_ORDER = 10
@@ -70,14 +72,6 @@ STAIRCASE_FRACTION = 0.5
 #: staircase's own mean-square error: a target below it puts λ where the fit still follows the steps (0.05 Hz
 #: sine, 10 µm ADC at 1 kHz, 0.2 s: 42 % of the peak speed without the margin, 2 % with it; 2 s: 24 %, 0.01 %).
 STAIR_MARGIN = 0.5
-#: log10 of the dimensionless λ (1: smoothing over about one knot interval): search range and step. Above 8 the
-#: banded Cholesky solve loses more than 1e-8 of the stroke (measured against an SVD solve).
-LOG_LAMBDA_MIN, LOG_LAMBDA_MAX, LOG_LAMBDA_STEP = -3.0, 8.0, 0.5
-#: With a knot every p > 1 samples, λ below this (smoothing over < 10^(3/8) = 2.4 knots) is not resolved: p
-#: halves. Doubling p lowers log10 λ by 2 M log10 2 = 2.4: accepted fits smooth over 2.4 to 9 knot intervals.
-LOG_LAMBDA_RESOLVED = 3.0
-#: Knot intervals of the first fit, about (a knot every 2^j samples; its λ search takes ~20 ms), and of any, at least.
-START_INTERVALS, MIN_KNOT_INTERVALS = 4096, 8
 #: Bootstrap replicates: their rms has a relative sd of 1/√(2 × 8 × smoothing lengths in the record), < 10 % on 20.
 N_BOOTSTRAP = 8
 #: A velocity channel is fitted jointly only if its gain is within 2 % of 1, its lag within 0.2 sample and its
@@ -108,6 +102,8 @@ class InputReconstruction:
         Samples, samples per knot interval (0: interpolation), bootstrap replicates behind the velocity error.
     log10_lambda, effective_dof : float
         Smoothing parameter (dimensionless; nan for an interpolation) and the fit's effective dof [-].
+    harmonic_frequency_hz, n_harmonics : float, int
+        Fundamental [Hz] and harmonics of the harmonic part (nan and 0: none).
     """
 
     breaks: np.ndarray
@@ -122,6 +118,8 @@ class InputReconstruction:
     n_bootstrap: int = 0
     log10_lambda: float = math.nan
     effective_dof: float = math.nan
+    harmonic_frequency_hz: float = math.nan
+    n_harmonics: int = 0
 
     def _evaluate(self, t, nu: int) -> np.ndarray:
         t = np.asarray(t, dtype=float)
@@ -148,6 +146,7 @@ class InputReconstruction:
         out = {k: (float(x) if math.isfinite(x) else None) for k, x in vars(self).items() if isinstance(x, float)}
         return out | {"method": self.method, "n_samples": int(self.n_samples), "n_pieces": int(self.coefs.shape[0]),
                       "knot_step": int(self.knot_step), "n_bootstrap": int(self.n_bootstrap),
+                      "n_harmonics": int(self.n_harmonics),
                       "t_start_s": float(self.breaks[0]), "t_end_s": float(self.breaks[-1])}
 
 
@@ -197,143 +196,6 @@ def _staircase(y: np.ndarray, q: float) -> tuple[int, float, float]:
     return n_steps + 1, min(white, q / 2.0), STAIR_MARGIN / math.sqrt(crossings)
 
 
-# ----------------------------------------------------------------------------- penalised spline
-def _derivative_map(knots: np.ndarray, k: int) -> sparse.csr_matrix:
-    """Map from the coefficients of a degree-k B-spline on ``knots`` to those of its derivative (on knots[1:-1])."""
-    nc = knots.size - k - 1
-    h = knots[k + 1:k + nc] - knots[1:nc]
-    w = np.divide(k, h, out=np.zeros_like(h), where=h > 0)
-    rows = np.arange(nc - 1)
-    return sparse.csr_matrix((np.r_[-w, w], (np.r_[rows, rows], np.r_[rows, rows + 1])), shape=(nc - 1, nc))
-
-
-def _banded(a, u: int) -> np.ndarray:
-    """Upper banded storage (``scipy.linalg.cholesky_banded``) of a symmetric sparse matrix of bandwidth ``u``."""
-    ab = np.zeros((u + 1, a.shape[0]))
-    for j in range(u + 1):
-        ab[u - j, j:] = a.diagonal(j)
-    return ab
-
-
-def _symbol(ab: np.ndarray, n: int) -> np.ndarray:
-    """Symbol a₀ + 2 Σ a_j cos(jθ), θ = 2πi/n, of the Toeplitz interior (middle row) of banded symmetric ``ab``, ≥ 0."""
-    u, mid = ab.shape[0] - 1, ab.shape[1] // 2
-    out = np.full(n, ab[u, mid])
-    for j in range(1, u + 1):
-        out += 2.0 * ab[u - j, mid + j] * np.cos(j * 2.0 * np.pi * np.arange(n) / n)
-    return np.maximum(out, 0.0)
-
-
-def _design(t: np.ndarray, step: int):
-    """(knots [s], basis, velocity basis [1/s], penalty ∫ B_i⁽ᴹ⁾ B_j⁽ᴹ⁾ dt) of quintic B-splines, a knot every
-    ``step`` samples of ``t``."""
-    n, deg = t.size, SPLINE_DEGREE
-    idx = np.arange(0, n - 1, step)
-    idx = idx[:-1] if n - 1 - idx[-1] < step / 2 and idx.size > 1 else idx  # a short last interval joins the previous
-    inner = t[np.r_[idx, n - 1]]
-    knots = np.r_[np.full(deg, inner[0]), inner, np.full(deg, inner[-1])]
-    d1 = _derivative_map(knots, deg)
-    dm, kn = d1, knots[1:-1]
-    for k in range(deg - 1, deg - PENALTY_ORDER, -1):
-        dm, kn = _derivative_map(kn, k) @ dm, kn[1:-1]
-    low = deg - PENALTY_ORDER  # f⁽ᴹ⁾ has this degree: Gauss-Legendre with low + 1 points is exact
-    g, gw = np.polynomial.legendre.leggauss(low + 1)
-    a, b = inner[:-1, None], inner[1:, None]
-    val = BSpline.design_matrix((0.5 * (b - a) * (g + 1.0) + a).ravel(), kn, low)
-    penalty = dm.T @ (val.T @ sparse.diags((0.5 * (b - a) * gw).ravel()) @ val) @ dm
-    return (knots, BSpline.design_matrix(t, knots, deg).tocsr(),
-            BSpline.design_matrix(t, knots[1:-1], deg - 1).tocsr() @ d1, penalty)
-
-
-class _Smoother:
-    """Penalised quintic B-spline, a knot every ``step`` samples; data weight 1 (displacement) and ``v_weight``
-    (velocity channel, optional)."""
-
-    def __init__(self, t, y, step, v=None, v_weight=0.0):
-        self.t, self.y, self.v, self.v_weight, self.step = t, y, v, v_weight, step
-        self.knots, self.basis, self.dbasis, penalty = _design(t, step)
-        gram, self.rhs = self.basis.T @ self.basis, self.basis.T @ y
-        if v is not None:
-            gram = gram + v_weight * (self.dbasis.T @ self.dbasis)
-            self.rhs = self.rhs + v_weight * (self.dbasis.T @ v)
-        self.gram, self.penalty = _banded(gram, SPLINE_DEGREE), _banded(penalty, SPLINE_DEGREE)
-        self.scale = float(np.max(self.gram[-1]) / np.max(self.penalty[-1]))  # λ = 1: about one knot interval
-        # edf from an evenly sampled stretch of 64 knot intervals (a jitter of 2e-4 of Δt: velocity error 10x)
-        tu = t[0] + np.arange(min(t.size, 64 * step + 1)) * (t[-1] - t[0]) / (t.size - 1)
-        _, bu, du, pu = _design(tu, step)
-        gu = bu.T @ bu + (v_weight * (du.T @ du) if v is not None else 0.0)
-        n = self.gram.shape[1]
-        self._g, self._o = _symbol(_banded(gu, SPLINE_DEGREE), n), _symbol(_banded(pu, SPLINE_DEGREE), n)
-        self._cache: dict[float, tuple] = {}
-
-    def factor(self, log_lam: float) -> np.ndarray:
-        return cholesky_banded(self.gram + 10.0 ** log_lam * self.scale * self.penalty, lower=False)
-
-    def fit(self, log_lam: float) -> tuple[np.ndarray, float, float, float]:
-        """(coefficients, displacement RSS [m²], weighted χ² [m²], edf [-]) at log10 λ = ``log_lam``."""
-        if log_lam not in self._cache:
-            c = cho_solve_banded((self.factor(log_lam), False), self.rhs)
-            r = self.y - self.basis @ c
-            rss = chi2 = float(r @ r)
-            if self.v is not None:
-                rv = self.v - self.dbasis @ c
-                chi2 += self.v_weight * float(rv @ rv)
-            edf = float(np.sum(self._g / (self._g + 10.0 ** log_lam * self.scale * self._o)))
-            self._cache[log_lam] = (c, rss, chi2, edf)
-        return self._cache[log_lam]
-
-    def select(self, s2: float, floor: tuple[int, float]) -> float:
-        """log10 λ minimising C_p = χ² + 2 s2 edf [m²] on the grid (refined by a parabola), raised to the largest
-        λ with RSS ≤ (n_f - edf) σ² for a staircase ``floor = (n_f, σ²)``."""
-        grid = np.arange(LOG_LAMBDA_MIN, LOG_LAMBDA_MAX + 0.5 * LOG_LAMBDA_STEP, LOG_LAMBDA_STEP)
-        fits = []
-        for u in grid:
-            try:
-                fits.append(self.fit(u))
-            except LinAlgError:  # positive definiteness lost to round-off: out of the search
-                fits.append((None, math.inf, math.inf, 0.0))
-        cp = np.array([chi2 + 2.0 * s2 * edf for _, _, chi2, edf in fits])
-        i = int(np.argmin(cp))
-        best = float(grid[i])
-        if 0 < i < grid.size - 1 and np.isfinite(cp[i - 1] + cp[i + 1]):
-            den = cp[i - 1] - 2.0 * cp[i] + cp[i + 1]
-            best += 0.5 * LOG_LAMBDA_STEP * (cp[i - 1] - cp[i + 1]) / den if den > 0.0 else 0.0
-        n_f, q2 = floor
-        for u, (_, rss, _, edf) in zip(grid[::-1], fits[::-1], strict=True):
-            if q2 > 0.0 and rss <= (n_f - edf) * q2:
-                return max(best, float(u))
-        return best
-
-    def local_basis(self, c: np.ndarray, offset: float) -> tuple[np.ndarray, np.ndarray]:
-        """(breaks [s], coefs) of the spline ``c`` + ``offset`` [m]."""
-        return _power_basis(BSpline(self.knots, c + offset, SPLINE_DEGREE))
-
-
-def _power_basis(spline: BSpline) -> tuple[np.ndarray, np.ndarray]:
-    """(breaks [s], coefs) of a B-spline in the local power basis, its empty end pieces dropped."""
-    pp = PPoly.from_spline(spline)
-    keep = np.diff(pp.x) > 0.0
-    breaks = np.r_[pp.x[:-1][keep], pp.x[1:][keep][-1]]
-    return np.ascontiguousarray(breaks, dtype=float), np.ascontiguousarray(pp.c[::-1, keep].T, dtype=float)
-
-
-def _smooth(t, y, s2, floor, v=None, v_weight=0.0) -> tuple[_Smoother, float]:
-    """Smoother and log10 λ; the knot spacing doubles while λ exceeds ``LOG_LAMBDA_MAX`` and halves while λ is
-    below ``LOG_LAMBDA_RESOLVED`` (module docstring)."""
-    step, tried = 2 ** max(0, int(math.log2(max(t.size / START_INTERVALS, 1.0)))), set()
-    while True:
-        sm = _Smoother(t, y, step, v, v_weight)
-        u = sm.select(s2, floor)
-        tried.add(step)
-        if (u >= LOG_LAMBDA_MAX - 0.5 * LOG_LAMBDA_STEP and (t.size - 1) // (2 * step) >= MIN_KNOT_INTERVALS
-                and 2 * step not in tried):
-            step *= 2
-        elif u < LOG_LAMBDA_RESOLVED and step > 1 and step // 2 not in tried:
-            step //= 2
-        else:
-            return sm, min(u, LOG_LAMBDA_MAX)
-
-
 # ----------------------------------------------------------------------------- the reconstruction
 def _validate(time, displacement, velocity):
     t, y = np.asarray(time, dtype=float), np.asarray(displacement, dtype=float)
@@ -371,16 +233,62 @@ def _velocity_gate(t, vel, acc, v) -> tuple[bool, str]:
                     f"{float(np.sqrt(np.mean((v - vel) ** 2))) * 1e3:.3g} mm/s")
 
 
+def _pieces(sm: Smoother, c: np.ndarray, offset: float, harmonic: HarmonicFit | None):
+    """(breaks [s], coefs) of the spline ``c`` + ``offset`` [m] plus the harmonic part (if any)."""
+    return sm.local_basis(c, offset) if harmonic is None else piecewise(harmonic, sm.spline(c, offset), sm.t)
+
+
+@dataclass
+class _Periodic:
+    """A kept harmonic part and the smoothing of the rest (internal)."""
+
+    harmonic: HarmonicFit
+    sm: Smoother
+    log_lam: float
+    mean: float  # the rest's mean [m]
+    rest: bool  # the rest smoothed (else its mean alone: C_p finds it noise)
+    edf: float
+
+
+def _periodic(t, y, v, sm: Smoother, log_lam: float, sigma: float, s2: float, floor, q: float):
+    """(the harmonic part with the smoothing of the rest, or None; one line saying so) of a record whose plain
+    smoothing is ``sm`` at ``log_lam`` (io/harmonic.py). Kept if it describes the record with fewer edf."""
+    w = sm.v_weight if v is not None else 0.0
+    harmonic = fit_harmonic(t, y, sigma, s2, sm.band(log_lam), moving_span(sm.dbasis @ sm.fit(log_lam)[0]),
+                            adc_step=q, velocity=v, velocity_weight=w)
+    if harmonic is None:
+        return None, ""
+    yr, vr = y - harmonic.derivative(t), None if v is None else v - harmonic.derivative(t, 1)
+    mean = float(np.mean(yr))
+    h_sm, h_lam = smooth(t, yr - mean, s2, floor, vr, w)
+    _, _, chi2, edf = h_sm.fit(h_lam)
+    chi2_mean = float(np.sum((yr - mean) ** 2)) + (w * float(vr @ vr) if vr is not None else 0.0)
+    rest = chi2 + 2.0 * s2 * edf < chi2_mean + 2.0 * s2
+    edf = (edf if rest else 1.0) + 2 * harmonic.n_harmonics + 3  # c₀, c₁, a_k, b_k and f
+    edf_0 = sm.fit(log_lam)[3]
+    note = f"; {harmonic.describe()}, edf {edf:.1f} against {edf_0:.1f} of the spline alone: "
+    if edf >= edf_0:
+        return None, note + "not kept"
+    return (_Periodic(harmonic, h_sm, h_lam, mean, rest, edf),
+            note + "kept" + ("" if rest else ", the rest is noise (C_p of its mean below the spline's)"))
+
+
 @dataclass
 class _Fit:
     """A reconstruction with what its bootstrap replicates need (internal)."""
 
     result: InputReconstruction
-    sm: _Smoother | None = None  # None: an interpolation
+    sm: Smoother | None = None  # None: an interpolation
     coef: np.ndarray | None = None
     mean: float = 0.0
     white: float = 0.0  # the white noise the bootstrap adds before quantising [m]
     sigma_v: float = 0.0  # noise sd of a jointly fitted velocity channel [m/s]
+    harmonic: HarmonicFit | None = None  # the periodic part (io/harmonic.py); the spline smooths the rest ...
+    rest: bool = True  # ... unless the rest is noise about its mean (its spline coefficients 0)
+
+    def velocity(self, c: np.ndarray, harmonic: HarmonicFit | None) -> np.ndarray:
+        """Velocity [m/s] at the samples of the spline ``c`` plus ``harmonic``."""
+        return self.sm.dbasis @ c + (harmonic.derivative(self.sm.t, 1) if harmonic is not None else 0.0)
 
 
 def _fit(time, displacement, velocity) -> _Fit:
@@ -397,53 +305,64 @@ def _fit(time, displacement, velocity) -> _Fit:
                   f"≤ {CLEAN_FRACTION:g} of the {stroke * 1e3:.3g} mm stroke), nothing to smooth")
         if v is not None:
             method += "; measured velocity only compared: " + _velocity_gate(t, spline(t, 1), spline(t, 2), v)[1]
-        breaks, coefs = _power_basis(spline)
+        breaks, coefs = power_basis(spline)
         return _Fit(InputReconstruction(breaks, coefs, sigma, q, method, float(np.sqrt(np.mean(
             (y - spline(t)) ** 2))), 0.0, t.size, 0, 0, math.nan, float(t.size)))
     mean = float(np.mean(y))  # constants are unpenalised: fitting about the mean only spares the solve's digits
     yc, floor = y - mean, (n_f, sigma**2 * (1.0 + margin) if n_f else 0.0)
     s2 = (sigma * (1.0 + CP_NOISE_MARGIN / math.sqrt(t.size))) ** 2
-    sm, log_lam = _smooth(t, yc, s2, floor)
+    sm, log_lam = smooth(t, yc, s2, floor)
     note, sigma_v = "", 0.0
     if v is not None:
         c = sm.fit(log_lam)[0]
-        agrees, check = _velocity_gate(t, sm.dbasis @ c, BSpline(sm.knots, c, SPLINE_DEGREE)(t, 2), v)
+        agrees, check = _velocity_gate(t, sm.dbasis @ c, sm.spline(c)(t, 2), v)
         sigma_v = max(estimate_noise_sd(v), detect_adc_step(v) / math.sqrt(12.0), CLEAN_FRACTION * float(np.ptp(v)))
         sigma_v = sigma_v if agrees else 0.0
         if sigma_v > 0.0:
-            sm, log_lam = _smooth(t, yc, s2, floor, v, sigma**2 / sigma_v**2)
+            sm, log_lam = smooth(t, yc, s2, floor, v, sigma**2 / sigma_v**2)
         note = (f"; measured velocity fitted jointly (σ̂_v = {sigma_v * 1e3:.3g} mm/s; it agrees: {check})"
                 if sigma_v > 0.0 else f"; measured velocity only compared, not fitted (it disagrees: {check})")
+    per, h_note = _periodic(t, y, v if sigma_v > 0.0 else None, sm, log_lam, sigma, s2, floor, q)
+    if per is not None:
+        sm, log_lam, mean, yc = per.sm, per.log_lam, per.mean, y - per.harmonic.derivative(t) - per.mean
     coef, _, _, edf = sm.fit(log_lam)
+    if per is not None:
+        coef, edf = coef if per.rest else np.zeros_like(coef), per.edf
+    harmonic, note = per.harmonic if per is not None else None, h_note + note
     noise = (f"σ = {sigma * 1e6:.3g} µm from the ADC step {q * 1e6:.3g} µm and the noise beneath it "
              f"({white * 1e6:.2g} µm, from level flips): a staircase, λ raised to RSS ≥ (n - edf) σ² (1 + {margin:.2g})"
              if n_f else f"σ̂ = {sigma * 1e6:.3g} µm from high-order differences"
              + (f", ADC step {q * 1e6:.3g} µm (moving > 1 step per sample: white)" if q else ""))
     method = (f"penalised quintic spline (∫(f⁽{PENALTY_ORDER}⁾)² penalty, knot every {sm.step} sample(s)), λ by "
               f"Mallows' C_p at σ (1 + {CP_NOISE_MARGIN:g}/√n), {noise}; edf {edf:.1f} of {t.size}{note}")
-    breaks, coefs = sm.local_basis(coef, mean)
+    breaks, coefs = _pieces(sm, coef, mean, harmonic)
     resid = float(np.sqrt(np.mean((yc - sm.basis @ coef) ** 2)))
     result = InputReconstruction(breaks, coefs, sigma, q, method, resid, math.nan, t.size, sm.step, 0,
-                                 float(log_lam), edf)
-    return _Fit(result, sm, coef, mean, white, sigma_v)
+                                 float(log_lam), edf, *((harmonic.frequency_hz, harmonic.n_harmonics)
+                                                        if harmonic is not None else (math.nan, 0)))
+    return _Fit(result, sm, coef, mean, white, sigma_v, harmonic, per is None or per.rest)
 
 
-def _replicate_coefs(fit: _Fit, n_replicates: int, seed: int) -> list[np.ndarray]:
-    """B-spline coefficients of ``n_replicates`` refits (same knots and λ) of the reconstruction plus white noise,
-    quantised on the ADC grid at a random offset (the staircase's phase is unknown) [m]."""
-    sm, q, rng = fit.sm, fit.result.adc_step_m, np.random.default_rng(seed)
+def _replicates(fit: _Fit, n_replicates: int, seed: int) -> list[tuple[np.ndarray, HarmonicFit | None]]:
+    """(B-spline coefficients, harmonic part) of ``n_replicates`` refits (same knots and λ; the harmonic part with
+    the same K, its frequency refined) of the reconstruction plus white noise, quantised on the ADC grid at a random
+    offset (the staircase's phase is unknown) [m]."""
+    sm, q, h, rng = fit.sm, fit.result.adc_step_m, fit.harmonic, np.random.default_rng(seed)
     chol = (sm.factor(fit.result.log10_lambda), False)
-    y_hat, v_hat = sm.basis @ fit.coef + fit.mean, sm.dbasis @ fit.coef
+    y_hat = sm.basis @ fit.coef + fit.mean + (h.derivative(sm.t) if h is not None else 0.0)
+    v_hat = fit.velocity(fit.coef, h)
     out = []
     for _ in range(n_replicates):
         ys = y_hat + fit.white * rng.standard_normal(y_hat.size)
         if q > 0.0:
             off = rng.uniform(0.0, q)
             ys = off + q * np.round((ys - off) / q)
-        rhs = sm.basis.T @ (ys - fit.mean)
-        if fit.sigma_v > 0.0:
-            rhs = rhs + sm.v_weight * (sm.dbasis.T @ (v_hat + fit.sigma_v * rng.standard_normal(v_hat.size)))
-        out.append(cho_solve_banded(chol, rhs))
+        vs = v_hat + fit.sigma_v * rng.standard_normal(v_hat.size) if fit.sigma_v > 0.0 else None
+        hb = None if h is None else refit(h, sm.t, ys, velocity=vs, velocity_weight=sm.v_weight)
+        rhs = sm.basis.T @ (ys - fit.mean - (hb.derivative(sm.t) if hb is not None else 0.0))
+        if vs is not None:
+            rhs = rhs + sm.v_weight * (sm.dbasis.T @ (vs - (hb.derivative(sm.t, 1) if hb is not None else 0.0)))
+        out.append((cho_solve_banded(chol, rhs) if fit.rest else np.zeros_like(fit.coef), hb))
     return out
 
 
@@ -472,8 +391,8 @@ def reconstruct_input(time, displacement, *, velocity=None, seed: int = 0) -> In
     fit = _fit(time, displacement, velocity)
     if fit.sm is None:
         return fit.result
-    v_hat = fit.sm.dbasis @ fit.coef
-    err = [fit.sm.dbasis @ c - v_hat for c in _replicate_coefs(fit, N_BOOTSTRAP, seed)]
+    v_hat = fit.velocity(fit.coef, fit.harmonic)
+    err = [fit.velocity(c, hb) - v_hat for c, hb in _replicates(fit, N_BOOTSTRAP, seed)]
     return replace(fit.result, velocity_error_m_s=float(np.sqrt(np.mean(np.square(err)))), n_bootstrap=N_BOOTSTRAP,
                    method=fit.result.method + f"; velocity error by a {N_BOOTSTRAP}-replicate parametric bootstrap")
 
@@ -492,8 +411,8 @@ def bootstrap_inputs(time, displacement, *, velocity=None, n_replicates: int = N
     if fit.sm is None:
         return [fit.result] * n_replicates
     out = []
-    for i, c in enumerate(_replicate_coefs(fit, n_replicates, seed)):
-        breaks, coefs = fit.sm.local_basis(c, fit.mean)
+    for i, (c, hb) in enumerate(_replicates(fit, n_replicates, seed)):
+        breaks, coefs = _pieces(fit.sm, c, fit.mean, hb)
         out.append(replace(fit.result, breaks=breaks, coefs=coefs, n_bootstrap=n_replicates, residual_rms_m=math.nan,
                            method=f"bootstrap replicate {i + 1}/{n_replicates} of: {fit.result.method}"))
     return out
