@@ -36,7 +36,8 @@ test-extended: $(STAMP)
 # The confusion tables of the closed loop, printed: on independent reference data (also in test-slow) and on
 # bayesdamper's own synthetic data (a consistency check, not in CI). One diagnose per case; long.
 test-confusion: $(STAMP)
-	$(PY) -m pytest -q -s -m "slow or confusion" tests/test_confusion.py tests/test_diagnosis.py tests/test_cycle_diagnosis.py
+	$(PY) -m pytest -q -s -m "slow or confusion" tests/test_confusion.py tests/test_diagnosis.py \
+		tests/test_cycle_diagnosis.py tests/test_confusion_cycles.py tests/test_artefacts.py tests/test_conditions_job.py
 
 # Known limitations, measured (strict xfail: they fail the day the limitation is lifted). Long; not in CI.
 test-limits: $(STAMP)

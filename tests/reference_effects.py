@@ -42,7 +42,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from independent import TriangleInput, bulk_modulus, orifice_flow, quasi_static_dp
+from independent import TriangleInput, bulk_modulus, orifice_flow, quasi_static_dp, segment_functions
 from scipy.integrate import solve_ivp
 
 __all__ = [
@@ -407,10 +407,18 @@ def inertance_for_frequency(freq_hz: float, damper: dict, flow, alpha_v: float, 
 
 
 def _segment(inp, ta: float, tb: float) -> tuple[Callable[[float], float], Callable[[float], float]]:
-    """y_A(t), v_A(t) valid on the closed segment [ta, tb] (no breakpoint inside)."""
+    """y_A(t), v_A(t) valid on the closed segment [ta, tb] (no breakpoint inside).
+
+    A triangle is linear on the segment (v never read at a kink); an input with an ``on_segment(ta, tb)`` method
+    (the wrappers of ``independent_records`` and ``reference_cycles``: a stop, a start from rest, the piston behind
+    a play) gives its own one-sided form, so a velocity step at a segment's end does not leak into it
+    (:func:`independent.segment_functions`); any other input is smooth and is read directly.
+    """
     if isinstance(inp, TriangleInput):  # linear on the segment: never read v at a kink
         ya, va = float(inp.displacement(ta)), float(inp.velocity(0.5 * (ta + tb)))
         return (lambda t: ya + va * (t - ta)), (lambda t: va)
+    if hasattr(inp, "on_segment"):
+        return segment_functions(inp, ta, tb)
     return (lambda t: float(inp.displacement(t))), (lambda t: float(inp.velocity(t)))
 
 
@@ -423,8 +431,10 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
 
     Parameters
     ----------
-    inp : SineInput, MultisineInput or TriangleInput (tests/independent.py)
-        Measured displacement channel y_A (``displacement``, ``velocity``, ``breakpoints``).
+    inp : SineInput, MultisineInput or TriangleInput (tests/independent.py), or any input of that interface
+        Measured displacement channel y_A (``displacement``, ``velocity``, ``breakpoints``; optionally
+        ``on_segment``): a random motion (``independent_records.random_input``), a wrapped input, or the piston
+        behind a play (``reference_cycles.play_input``).
     t_samples : array_like, shape (n,)
         Non-decreasing sample times [s] (absolute record time), all >= ``t0``.
     damper : dict

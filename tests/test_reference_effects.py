@@ -427,3 +427,130 @@ def test_tolerance_convergence_with_fluid_inertance():
                                     "placement": 1, "mode": 1}}
     loose, tight = run(effects, rtol=1e-8), run(effects, rtol=1e-11)
     assert rel_l2(loose, tight) < CONVERGENCE_RTOL
+
+
+# ----------------------------------------------------------------------------- smooth inputs and rig effects
+# (tests/reference_cycles.py: the reference driven by sines and random motion, with friction, backlash and a
+# compliant mount; the records of tests/test_confusion_cycles.py)
+#: Two independent Radau integrations of the same equations (independent.simulate vs simulate_effects, rtol 1e-10):
+#: only their step sequences differ.
+TWO_SIMULATORS_RTOL = 1e-6
+
+
+def test_reference_cycles_imports_nothing_from_bayesdamper():
+    tree = ast.parse((Path(__file__).parent / "reference_cycles.py").read_text())
+    mods = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    mods += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert mods and not any(m.split(".")[0] == "bayesdamper" for m in mods)
+
+
+def test_a_wrapped_input_is_integrated_on_its_one_sided_segments():
+    """An abrupt stop (a velocity step, ``independent_records.stop_at``): simulate_effects reads the wrapper's
+    ``on_segment`` like independent.simulate, so the two integrators agree, and the stop shows (the force relaxes)."""
+    from independent_records import stop_at
+
+    inp = stop_at(sine_input(0.01, 1.0), 1.13)
+    t = np.arange(0.0, 2.0, 1 / 500)
+    ref = simulate(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, rtol=1e-10)
+    got = simulate_effects(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5)
+    assert rel_l2(got, ref) < TWO_SIMULATORS_RTOL
+    assert abs(got[-1]) < 1e-3 * np.max(np.abs(got))  # at rest after the stop: Δp has relaxed
+
+
+def test_random_motion_drives_the_reference_like_independent_simulate():
+    from independent_records import random_input
+
+    inp = random_input(0.3, 3.0, seed=7, rms_displacement=0.003, resolution=0.05)
+    t = np.arange(0.0, 3.0, 1 / 200)
+    ref = simulate(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, t0=-1.0, rtol=1e-10)
+    got = simulate_effects(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, t0=-1.0)
+    assert np.max(np.abs(ref)) > 100.0 and rel_l2(got, ref) < TWO_SIMULATORS_RTOL
+
+
+def test_play_operator_on_a_sine():
+    """Sine A sin(ωt) behind a play g: after the top reversal (t = T/4) the piston rests at A - g/2 until
+    A sin(ωt) = A - g, then follows at y_A + g/2; it never leaves the play, and moves at 0 or at v_A."""
+    from reference_cycles import play_input
+
+    a, f, gap = 0.005, 2.0, 4e-4
+    inp = sine_input(a, f)
+    play = play_input(inp, gap, 0.0, 1.0)
+    w = 2 * math.pi * f
+    t = np.linspace(0.0, 1.0, 20001)
+    y_p, v_p, y_a, v_a = play.displacement(t), play.velocity(t), inp.displacement(t), inp.velocity(t)
+    assert np.all(np.abs(y_a - y_p) <= 0.5 * gap * (1 + 1e-12))
+    assert np.all((v_p == 0.0) | (v_p == v_a))
+    t_contact = (math.pi - math.asin(1 - gap / a)) / w  # first time after T/4 with y_A = A - g
+    rest = (t > 0.25 / f + 1e-6) & (t < t_contact - 1e-6)
+    assert np.allclose(y_p[rest], a - 0.5 * gap, rtol=0, atol=1e-12) and np.all(v_p[rest] == 0.0)
+    after = (t > t_contact + 1e-6) & (t < 0.75 / f)
+    assert np.allclose(y_p[after], y_a[after] + 0.5 * gap, rtol=0, atol=1e-12)
+    assert np.any(np.isclose(play.breakpoints(0.0, 1.0), t_contact, rtol=0, atol=1e-10))
+    assert math.isclose(np.ptp(y_p[t > 0.3]), 2 * a - gap, rel_tol=1e-6)  # the piston's stroke is the play's less
+
+
+def test_backlash_force_from_two_integrators_and_its_vanishing_limit():
+    """The piston behind the play drives independent.simulate (its own segment handling) and simulate_rig alike; a
+    play of 1 nm changes the force by far less than 0.4 mm does."""
+    from reference_cycles import play_input, simulate_rig
+
+    inp = sine_input(0.005, 2.0)
+    t = np.arange(0.0, 1.5, 1 / 500)
+    kw = dict(t0=-0.5, rtol=1e-10, atol=1e-6)
+    rig = simulate_rig(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, {"backlash": {"gap_m": 4e-4}}, **kw)
+    ref = simulate(play_input(inp, 4e-4, -0.5, 1.5), t, SMALL, SMALL_FLOW, 30.0, 3e5, **kw)
+    assert rel_l2(rig, ref) < TWO_SIMULATORS_RTOL
+    bare = simulate_rig(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, {}, **kw)
+    tiny = simulate_rig(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, {"backlash": {"gap_m": 1e-9}}, **kw)
+    assert rel_l2(tiny, bare) < 1e-3 * rel_l2(rig, bare) and rel_l2(rig, bare) > 0.01
+
+
+def test_coulomb_friction_adds_its_closed_form():
+    from reference_cycles import simulate_rig
+
+    inp = sine_input(0.005, 2.0)
+    t = np.arange(0.0, 1.0, 1 / 500)
+    bare = simulate_rig(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, {}, t0=-0.5)
+    got = simulate_rig(inp, t, SMALL, SMALL_FLOW, 30.0, 3e5, {"friction": {"coulomb_N": 40.0,
+                                                                           "viscous_Ns_per_m": 200.0}}, t0=-0.5)
+    v = inp.velocity(t)
+    assert np.allclose(got - bare, 40.0 * np.tanh(v / 1e-5) + 200.0 * v, rtol=0, atol=1e-6)
+
+
+def test_stiff_mount_is_eq7_and_a_soft_one_slows_the_rise_as_a_series_spring():
+    """k_s = 1e15 N/m: eq. (7). A soft mount after a 1 mm/s step from rest, laminar orifice, nearly gas-free fluid
+    (B ≈ B_0): dΔp/dt = K (A v - Δp / C_L) / (1 + K A^2 / k_s), an exponential of time constant
+    C_L (1 + K A^2 / k_s) / K to the plateau A v C_L (K = 2 B_0 / V_0 up to the piston's 2 µm travel)."""
+    from reference_cycles import simulate_compliant
+
+    t = np.arange(0.0, 0.3, 1 / 2000)
+    inp = triangle_input(SPEED, AMPLITUDE, 0.0, 0.0)
+    bare = simulate(inp, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R, dp0=0.0, t0=0.0, rtol=1e-10)
+    stiff = simulate_compliant(inp, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R, 1e15, dp0=0.0, t0=0.0)
+    assert rel_l2(stiff, bare) < TWO_SIMULATORS_RTOL
+    laminar, k_s = (2.4e10, 0.0, 2.4e10, 0.0), 2e7
+    f = simulate_compliant(inp, t, RIG_A, laminar, 1e9, 1e5, k_s, dp0=0.0, t0=0.0)
+    k = 2 * RIG_A["b0"] / RIG_A["v01"]
+    tau = laminar[0] * (1 + k * AREA**2 / k_s) / k
+    want = AREA * SPEED * laminar[0] * AREA * (1 - np.exp(-t / tau))
+    assert 0.01 < tau / t[-1] < 0.2  # the rise is seen and finished within the record
+    assert np.allclose(f, want, rtol=0, atol=1e-3 * want[-1])
+
+
+def test_records_are_seeded_and_span_several_speeds():
+    from reference_cycles import LAB, LAB_FLOW, random_records, sine_records
+
+    kw = dict(duration=2.0, rate=200.0, damper=LAB, flow=LAB_FLOW, alpha_v=40.0, p_r=2e5, force_sd=3.0,
+              displacement_sd=2e-6, seed=3)
+    sines = sine_records(((0.01, 0.5), (0.005, 3.0)), **kw)
+    again = sine_records(((0.01, 0.5), (0.005, 3.0)), **{**kw, "seed": 4})
+    rand = random_records((0.0015, 0.004), (0.3, 3.0), **kw)
+    assert list(sines) == ["sine_10mm_0p5Hz", "sine_5mm_3Hz"] and len(rand) == 2
+    peaks = []
+    for recs in (sines, rand):
+        for t, y, f in recs.values():
+            assert t.size == 400 and np.all(np.isfinite(f)) and np.max(np.abs(f)) > 100.0
+            peaks.append(np.max(np.abs(np.gradient(y, t))))
+    assert peaks[1] > 2 * peaks[0] and peaks[3] > 1.5 * peaks[2]
+    (t, y, f), (_, y2, f2) = sines["sine_10mm_0p5Hz"], again["sine_10mm_0p5Hz"]
+    assert 1.5 < np.std(f - f2) / math.sqrt(2) < 4.5 and 1e-6 < np.std(y - y2) / math.sqrt(2) < 3e-6  # the noises
