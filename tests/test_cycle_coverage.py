@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 from record_coverage import CASES, PARAMS, format_table, run_cases, table
 
-#: The cases of the first test in CI, with one seed's wall time on 2 cores and its windows (34 in all).
+#: The cases of the first test in CI, with one seed's wall time on 2 cores and its windows (39 in all).
 CASE_NAMES = tuple(os.environ.get("BAYESDAMPER_COVERAGE_CASES", ",".join((
     "FAST",         # small damper, 4 sines 0.5-5 Hz, 2-15 mm at 500 Hz, white noise: 48 s, 4 windows
     "STOP-ABRUPT",  # stops with a velocity step, then rests: 21 s, 2 windows
@@ -41,12 +41,13 @@ CASE_NAMES = tuple(os.environ.get("BAYESDAMPER_COVERAGE_CASES", ",".join((
     "SLOW-W",       # rig-A, 2 mm sines at 0.6-1.5 mm/s, 100 Hz: 32 s, 6 windows
     "SLOW-AR",      # AR(1) force noise φ = 0.95, 10 µm displacement noise, 250 Hz: 26 s, 5 windows
     "SLOW-STOP",    # abrupt stops and 6 s at rest: 29 s, 7 windows
+    "SLOW-LVDT",    # the slow sines at 200 Hz, 10 N force noise, 1 µm LVDT noise: ~60 s, 6 windows
 ))).split(","))
 #: The case of the second test: SLOW-W's sines with 30 µm white displacement noise (61-200 s on a loaded machine,
 #: 5 windows).
 NOISY_INPUT_CASE = "SLOW-DN"
 SEEDS = tuple(int(s) for s in os.environ.get("BAYESDAMPER_COVERAGE_SEEDS", "0").split(","))
-#: Pooled coverage band over all parameter-window pairs. 6 x 34 pairs; the parameters of one window are correlated
+#: Pooled coverage band over all parameter-window pairs. 6 x 39 pairs; the parameters of one window are correlated
 #: (C_L and C_Q of a direction miss together), so count an effective half of them: a binomial sd of 3 % about
 #: 0.9. Below: about 3.5 sd (0.80); above: about 2.7 sd (0.98). Above the band means inflated intervals, below it
 #: overconfident ones.
@@ -109,7 +110,8 @@ def test_cycle_window_intervals_cover_the_truth(tmp_path, capsys):
     with capsys.disabled():
         print("\n" + _report(rows, res["tables"]))
     ratios = {r["id"] + f" ({r['case']})": round(r["J_ratio"], 3) for r in rows if _clean_input(r["case"])}
-    assert ratios and max(ratios.values()) <= MAX_J_RATIO, {k: v for k, v in ratios.items() if v > MAX_J_RATIO}
+    if any(_clean_input(c) for c in CASE_NAMES):  # cases chosen by BAYESDAMPER_COVERAGE_CASES may all be noisy
+        assert ratios and max(ratios.values()) <= MAX_J_RATIO, {k: v for k, v in ratios.items() if v > MAX_J_RATIO}
     _check_coverage(rows)
 
 
