@@ -51,6 +51,11 @@ def report_text(d: dict) -> str:
              f"residual rms grows with speed as v^{s['rms_vs_speed_log_slope']:.2f}, centroid "
              f"{s['median_t_centroid_s']:.2f} s after the step, dominant frequency "
              f"{s['median_peak_frequency_Hz']:.2f} Hz."]
+    off = d.get("stage1_offset_N")
+    if off:
+        lines.append(f"Stage 1: the plateaus hold a constant force offset F_0 = {off['value']:.1f} ± {off['se']:.1f} N "
+                     f"(an unzeroed load cell or a preload; eq. (4) alone needed {', '.join(off['held_at_zero'])} "
+                     "held at 0); the windows' baseline has no offset, the candidates test it (load_cell_offset).")
     sig = d.get("residual_dynamics") or {}
     if sig.get("summary"):
         lines.append(f"Residual dynamics (leave-one-speed-out, from the model's own signals): {sig['summary']}.")
@@ -86,8 +91,13 @@ def report_text(d: dict) -> str:
             vals = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
             lines.append(f"Selected: {label} ({vals}): {effect_reading(label, values, EFFECTS[name].description)}")
     else:
+        passing = [c for c in d["candidates"] if c.get("supported")]
         lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
-                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J.")
+                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J." if not passing else
+                     f"Selected: none - {', '.join(c['effect'] for c in passing)} "
+                     f"{'passes' if len(passing) == 1 else 'pass'} delta-BIC_eff <= "
+                     f"{SELECT_DELTA_BIC:g} and a {MIN_J_REDUCTION:.0%} reduction of the pooled J in sample but "
+                     "not the held-out speeds.")
         if d["candidates"]:
             c = d["candidates"][0]
             if c.get("supported") and "lovo" in c:

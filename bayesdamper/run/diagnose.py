@@ -316,6 +316,9 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
                                     p.structure, signature, rounds, selected, fixed, p.names, p.settings,
                                     final_settings(p.settings), p.credible_mass, p.seed, p.prov)
     diagnosis.update(extra or {})
+    if p.static is not None and p.static.offset is not None:  # stage 1's finding: an offset in the plateaus
+        value, se = p.static.offset_force(area)
+        diagnosis["stage1_offset_N"] = {"value": value, "se": se, "held_at_zero": list(p.static.constrained)}
     with progress.phase("diagnose: drift law and prediction check", unit="model"):
         diagnosis.update(calibrate_and_check(p.out_dir, ds, windows, p.base, final, fixed if selected else {},
                                              seed=p.seed, credible_mass=p.credible_mass, provenance=p.prov,
