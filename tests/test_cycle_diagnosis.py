@@ -97,8 +97,8 @@ def test_lab_mr_main_job(tmp_path, capsys):
     residual yield stress give a dry force at 0 V); the final model must at least halve the pooled J of eq. (7), and
     lower J on every window. The report shows every window's posterior, its loops, and the selected effects.
 
-    The sampling is bounded (100 steps), as the default step budget does not converge on these records either; the
-    report must say per window which did not converge and why.
+    The sampling is bounded (100 steps) for time (the default budget converges, but the whole job then takes about an
+    hour on 2 cores); the report must say per window which did not converge and why.
     """
     from test_report import parse
 
