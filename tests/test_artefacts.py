@@ -102,8 +102,8 @@ def test_offset_larger_than_the_slowest_plateau_force_is_recovered():
 
 
 #: Effects the diagnosis may name on this data besides the artefacts: the two-state physics eq. (7) lacks (the
-#: absolute-pressure state, the library's ``accumulator``).
-TWO_STATE_PHYSICS = {"accumulator"}
+#: absolute-pressure state, the library's ``two_state``).
+TWO_STATE_PHYSICS = {"two_state"}
 
 
 @pytest.fixture(scope="module")

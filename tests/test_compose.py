@@ -152,8 +152,8 @@ def test_kernel_source_names_no_effect_and_guards_every_hook():
     names = list(EFFECT_MODULES)
     for i, name in enumerate(names):
         mod = EFFECT_MODULES[name]
-        hooks = {h for h in ("displacement", "flow", "pressures", "chamber_flows", "derivatives", "force", "force_acts",
-                             "initial", "state_atol") if hasattr(mod, h)}
+        hooks = {h for h in ("displacement", "flow", "pressures", "moduli", "chamber_flows", "derivatives", "force",
+                             "force_acts", "initial", "state_atol") if hasattr(mod, h)}
         assert calls.get(f"_e{i}", set()) == hooks, name
     lay, n_states = layout(("friction", "valve_dynamics", "inertia"))
     active = [names[i] for i in np.flatnonzero(lay[:, L_ACTIVE])]

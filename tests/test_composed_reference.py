@@ -86,8 +86,9 @@ def sine_input(amplitude, frequency, t_end):
 
 
 def reference_force(t_out, inp, t0, dp0, v_prev, effects, alpha_v=DYN.liquid_gas_ratio, p_r=DYN.reference_pressure,
-                    accumulator=None):
-    """Radau solution of eq. (7) with effects (or, with ``accumulator=(p_a, G)``, of the two-state model eq. (1)).
+                    accumulator=None, kappa=1.0):
+    """Radau solution of eq. (7) with effects (or, with ``accumulator=(p_a, G)``, of the two-state model eq. (1),
+    its chambers' moduli eq. (2) about the charge p_a with polytropic exponent ``kappa``).
 
     ``inp`` is ``(breaks, piece)`` with ``piece(t, k) -> (y_A, v_A, a_A)`` on ``[breaks[k], breaks[k + 1]]``; the
     integration restarts at every break. States: Δp (or p_1, p_2), the valve opening x, the lag's trail
@@ -111,6 +112,10 @@ def reference_force(t_out, inp, t0, dp0, v_prev, effects, alpha_v=DYN.liquid_gas
     def bulk(p):  # eq. (3) with p_0 -> p_R
         return b0 * (1 + alpha_v) / (alpha_v + b0 * p_r / p**2)
 
+    def bulk_gas(p):  # eq. (2) about the charge: gas volume (p_a/p)^(1/κ) of its value there
+        r = p_a / p
+        return b0 * (1 + r ** (1 / kappa) / alpha_v) / (1 + b0 / (kappa * p_a) * r ** ((kappa + 1) / kappa) / alpha_v)
+
     def x_ss(dp):
         return max(1 - math.exp(-abs(dp) / p_v), MIN_OPENING)
 
@@ -132,7 +137,7 @@ def reference_force(t_out, inp, t0, dp0, v_prev, effects, alpha_v=DYN.liquid_gas
         if two:
             p1, p2 = z[0], z[1]
             assert p1 > 1e4 and p2 > 1e4, "below the kernel's pressure floor: not the same model"
-            g1, g2 = bulk(p1) / (v01 - AREA * y), bulk(p2) / (v02 + AREA * y)
+            g1, g2 = bulk_gas(p1) / (v01 - AREA * y), bulk_gas(p2) / (v02 + AREA * y)
             q1, q2 = g_acc * max(p_a - p1, 0.0), g_acc * max(p_a - p2, 0.0)
             ddp = ((g1 + g2) * (AREA * vd - q) + g1 * q1 - g2 * q2) / (1 + (g1 + g2) * AREA**2 * comp)
             vp = vd - comp * AREA * ddp
@@ -566,6 +571,13 @@ def test_two_state_with_effects_matches_radau_reference(combo, eff):
     ref = reference_force(TWO_T, linear_input(TWO_EXC.knot_times, TWO_EXC.knot_displacements), 0.0, 0.0, 0.0, eff,
                           accumulator=(DYN.reference_pressure, TWO_STATE_G))
     assert rel_l2(f, ref) < REF_RTOL, rel_l2(f, ref)
+    # an adiabatic-leaning gas (κ 1.3): the kernel's eq. (2) against the reference's
+    fk, st = kernel_force(TWO_T, TWO_EXC.as_polynomial(), 0.0, 0.0, 0.0,
+                          two_state_effects(DYN, eff, TWO_STATE_G, kappa=1.3))
+    refk = reference_force(TWO_T, linear_input(TWO_EXC.knot_times, TWO_EXC.knot_displacements), 0.0, 0.0, 0.0, eff,
+                           accumulator=(DYN.reference_pressure, TWO_STATE_G), kappa=1.3)
+    assert st == STATUS_OK and rel_l2(fk, refk) < REF_RTOL, rel_l2(fk, refk)
+    assert rel_l2(refk, ref) > VISIBLE * REF_RTOL  # κ is visible in the force
     assert rel_l2(ref, _two_state_plain()) > VISIBLE * REF_RTOL
     if combo == "all":
         t, kt, ky, t0, dp0, v_prev = window_case(-1, True, rate=50.0)

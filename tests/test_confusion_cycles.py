@@ -10,7 +10,7 @@ frequency (or rms level), so the loop's held-out folds (by peak speed) are sever
 
 The rule judged, the issue's: every injected family is named (by effect name; a form the library does not hold,
 the fluid inertance, by the generic effect on the flow path, ``unnamed_dynamics@flow...``), the controls get
-nothing or only the two-state physics (``accumulator``), and where an effect exists the pooled J after the loop is
+nothing or only the two-state physics (``two_state``), and where an effect exists the pooled J after the loop is
 at most half the eq. (7) baseline's. None of these numbers was tuned on these cases: the effects are sized to be
 visible above the noise on the physics (see :data:`CASES`), and the J ratio is the issue's.
 
@@ -84,8 +84,8 @@ NAMES = {
 }
 #: The form the library does not hold is named by a label with this prefix (the generic effect on the flow path).
 UNNAMED_FLOW = "unnamed_dynamics@flow"
-#: What a control may get: the two-state physics (the accumulator), nothing else.
-CONTROL_ALLOWED = {"accumulator"}
+#: What a control may get: the two-state physics (the library's two_state), nothing else.
+CONTROL_ALLOWED = {"two_state"}
 
 CASES = [(effect, kind) for effect in EFFECTS for kind in ("sine", "random")]
 #: Cases run in CI (``slow``); none: every diagnosis takes minutes and CI's time goes to the triangular table

@@ -38,7 +38,6 @@ REF_RTOL = 2e-6
 NEW = {
     "poppet_valve": {"natural_frequency_Hz": 5.0, "damping_ratio": 0.2, "cracking_pressure_Pa": 1.0e5,
                      "span_Pa": 5.0e5},
-    "accumulator": {"charge_pressure_Pa": 3.0e5, "conductance_m3_per_s_Pa": 1.0e-11},
     "gas_spring": {"stiffness_N_per_m": 2.0e5},
     "load_cell_offset": {"offset_N": -80.0},
     "mains_interference": {"cos_amplitude_N": 20.0, "sin_amplitude_N": -15.0, "frequency_Hz": 50.0},
@@ -57,8 +56,7 @@ CASES = [(n, {n: v}) for n, v in NEW.items()] + [
                                                   "driver": 3, "law": 0, "placement": 0, "mode": 1}}),
     ("unnamed_transient_flow", {"unnamed_dynamics": {"gain": 0.2, "natural_frequency_Hz": 5.0, "damping_ratio": 1.0,
                                                      "driver": 1, "law": 0, "placement": 1, "mode": 1}}),
-    ("poppet+accumulator+friction", {"poppet_valve": NEW["poppet_valve"], "accumulator": NEW["accumulator"],
-                                     "seal_friction": NEW["seal_friction"]}),
+    ("poppet+friction", {"poppet_valve": NEW["poppet_valve"], "seal_friction": NEW["seal_friction"]}),
     ("command+leakage+offset", {"command_displacement": NEW["command_displacement"], "leakage": NEW["leakage"],
                                 "load_cell_offset": NEW["load_cell_offset"]}),
 ]
@@ -150,13 +148,17 @@ def test_effect_argument_and_round_trip():
 
 
 def test_the_library_holds_what_the_issue_names():
-    assert {"poppet_valve", "seal_friction", "accumulator", "gas_spring", "load_cell_offset", "mains_interference",
-            "command_displacement", "leakage", "unnamed_dynamics"} <= set(EFFECT_NAMES)
-    lay, n_states = layout(("friction", "accumulator"))
-    assert n_states == 2 and int(lay[:, L_ACTIVE].sum()) == 2  # Δp and the accumulator's mean pressure
+    assert {"poppet_valve", "seal_friction", "two_state", "gas_spring", "load_cell_offset", "mains_interference",
+            "command_displacement", "leakage", "unnamed_dynamics", "constant_bulk_modulus"} <= set(EFFECT_NAMES)
+    lay, n_states = layout(("friction", "two_state"))
+    assert n_states == 2 and int(lay[:, L_ACTIVE].sum()) == 2  # Δp and the two-state model's mean pressure
     src = kernel_source()
-    assert "p1, p2 = _e{}.pressures(".format(list(EFFECT_MODULES).index("accumulator")) in src
+    i = list(EFFECT_MODULES).index("two_state")
+    assert f"p1, p2 = _e{i}.pressures(" in src and f"b1, b2 = _e{i}.moduli(" in src
     assert "    if absolute:" in src and "loaded = _bulk" in src  # eq. (6) only without absolute pressures
+    with pytest.raises(SettingsError, match="bulk moduli"):
+        layout(("constant_bulk_modulus", "two_state"))
+    assert not EFFECTS["constant_bulk_modulus"].candidate and EFFECTS["two_state"].candidate
 
 
 def test_signed_and_infinite_parameters_are_checked():

@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 
 from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DamperConstants, DynamicParameters, FlowCoefficients
-from bayesdamper.physics.compressibility import bulk_modulus
+from bayesdamper.physics.compressibility import bulk_modulus_general
 from bayesdamper.physics.excitation import PiecewiseLinear
 from bayesdamper.physics.orifice import flow_rate, pressure_drop
 from bayesdamper.physics.reference import reference_single_state, simulate_two_state
@@ -246,7 +246,7 @@ def test_two_state_stiff_accumulator_limit(dyn):
     a, p_r, area, v = dyn.liquid_gas_ratio, dyn.reference_pressure, D.piston_area, 1.5e-3
 
     def reduced(t, x):
-        b1 = bulk_modulus(p_r + x[0], D.liquid_bulk_modulus, a, p_r)
+        b1 = bulk_modulus_general(p_r + x[0], D.liquid_bulk_modulus, a, p_r, 1.0)
         return [b1 / (D.chamber_volume_1 - area * v * t) * (area * v - flow_rate(x[0], PAPER_FLOW))]
 
     ref = solve_ivp(reduced, (0, 3), [0.0], method="Radau", t_eval=T, rtol=1e-10, atol=1e-6).y[0]

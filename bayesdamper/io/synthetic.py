@@ -157,7 +157,7 @@ def simulate_with_effects(t: np.ndarray, excitation: PiecewiseLinear, dynamic: D
     """Measured force [N] at ``t`` [s] of the whole record with effects injected into the base model.
 
     ``model="eq7"``: eq. (7) with the effects; ``"two-state"``: the two-state model eq. (1), eq. (7) composed
-    with the ``accumulator`` effect charged to p_R (:func:`bayesdamper.physics.with_effects.two_state_effects`).
+    with the ``two_state`` effect charged to p_R (:func:`bayesdamper.physics.with_effects.two_state_effects`).
     Both on the composed kernel (:func:`bayesdamper.physics.with_effects.simulate_effects`), from rest at t = 0.
     """
     from bayesdamper.physics.with_effects import simulate_effects, two_state_effects

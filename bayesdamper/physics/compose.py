@@ -15,8 +15,8 @@ Order of evaluation at time t (the signals of :mod:`~bayesdamper.physics.effects
    (:class:`~bayesdamper.physics.excitation.PiecewisePolynomial`); the displacement-path hooks in registry
    order; the series compliance: y_P = y_D - c A_P Δp;
 2. Q_O(Δp) of eq. (8), then the flow-path hooks;
-3. absolute pressures from a ``pressures`` hook (at most one effect) with B(p_i) of eq. (3), else eq. (6);
-   extra chamber inflows q_1, q_2;
+3. absolute pressures from a ``pressures`` hook (at most one effect) with B(p_i) of eq. (3), else eq. (6); a
+   ``moduli`` hook (at most one effect) replaces these moduli; extra chamber inflows q_1, q_2;
 4. dΔp/dt = [B_1/V_1 (A_P v_D - Q + q_1) + B_2/V_2 (A_P v_D - Q - q_2)] / (1 + K A_P^2 c),
    K = B_1/V_1 + B_2/V_2, v_P = v_D - c A_P dΔp/dt (with every effect off this is eq. (7));
 5. the effects' state derivatives; the force F = A_P Δp + the force hooks.
@@ -126,7 +126,8 @@ def compose(effects: Mapping[str, Mapping[str, float] | None] | None) -> Compose
 
 
 #: Hooks that change the ODE or its input (an effect with none of them and no state only adds a force).
-ODE_HOOKS = ("displacement", "compliance", "flow", "pressures", "chamber_flows", "derivatives", "transform_input")
+ODE_HOOKS = ("displacement", "compliance", "flow", "pressures", "moduli", "chamber_flows", "derivatives",
+             "transform_input")
 
 
 # ----------------------------------------------------------------------------- code generation
@@ -145,10 +146,10 @@ def layout(names: tuple[str, ...]) -> tuple[np.ndarray, int]:
     unknown = [n for n in names if n not in EFFECT_MODULES]
     if unknown:
         raise SettingsError(f"unknown effect(s) {', '.join(unknown)}")
-    setting = [n for n in names if hasattr(EFFECT_MODULES[n], "pressures")]
-    if len(setting) > 1:
-        raise SettingsError("effects " + ", ".join(setting) + " all set the chamber pressures: name at most one "
-                            "of them")
+    for hook, what in (("pressures", "the chamber pressures"), ("moduli", "the chambers' bulk moduli")):
+        setting = [n for n in names if hasattr(EFFECT_MODULES[n], hook)]
+        if len(setting) > 1:
+            raise SettingsError("effects " + ", ".join(setting) + f" all set {what}: name at most one of them")
     lay = np.zeros((len(EFFECT_MODULES), 4), dtype=np.int64)
     o, a = 1, 0
     for i, (name, mod) in enumerate(EFFECT_MODULES.items()):
@@ -186,8 +187,8 @@ def kernel_source() -> str:
     lines = ["", "", "# " + "-" * 77 + " generated model half",
              "from bayesdamper.physics.compressibility import bulk_modulus_scalar as _bulk",
              "from bayesdamper.physics.orifice import orifice_flow as _orifice",
-             "from bayesdamper.physics.effects.signals import (AA, DDP, DP, DP1, DP2, P1, P2, PRESSURE_FLOOR_PA,",
-             "                                               Q, QO, T, V1, V2, VA, VP, YA, YP)"]
+             "from bayesdamper.physics.effects.signals import (AA, AV, BL, DDP, DP, DP1, DP2, P1, P2, PR,",
+             "                                               PRESSURE_FLOOR_PA, Q, QO, T, V1, V2, VA, VP, YA, YP)"]
     for alias, mod, _ in rows:
         lines.append(f"import {mod.__name__} as {alias}")
     lines += ["", "", "@njit(cache=True)",
@@ -208,6 +209,9 @@ def kernel_source() -> str:
               "    sig[AA] = aa",
               "    sig[YP] = ya",
               "    sig[VP] = va",
+              "    sig[PR] = base[B_PR]",
+              "    sig[AV] = base[B_ALPHA]",
+              "    sig[BL] = base[B_B0]",
               "    for i in range(ds.shape[0]):",
               "        ds[i] = 0.0"]
     lines += guarded("displacement", lambda i, a, n: [
@@ -246,8 +250,9 @@ def kernel_source() -> str:
               "        loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
               "        unloaded = _bulk(p_r, b0, alpha, p_r)",
               "        b1 = loaded if dp >= 0.0 else unloaded",
-              "        b2 = unloaded if dp >= 0.0 else loaded",
-              "    q1 = 0.0", "    q2 = 0.0"]
+              "        b2 = unloaded if dp >= 0.0 else loaded"]
+    lines += guarded("moduli", lambda i, a, n: [f"b1, b2 = {a}.moduli(sig, {z(i, n)}, {p(i)})"])
+    lines += ["    q1 = 0.0", "    q2 = 0.0"]
     lines += guarded("chamber_flows", lambda i, a, n: [f"a1, a2 = {a}.chamber_flows(sig, {z(i, n)}, {p(i)})",
                                                        "q1 += a1", "q2 += a2"])
     lines += ["    g1 = b1 / vol1",
@@ -280,7 +285,10 @@ def kernel_source() -> str:
               "    sig[AA] = 0.0",
               "    sig[YP] = ya0",
               "    sig[VP] = v_prev",
-              "    sig[DP] = dp0"]
+              "    sig[DP] = dp0",
+              "    sig[PR] = base[B_PR]",
+              "    sig[AV] = base[B_ALPHA]",
+              "    sig[BL] = base[B_B0]"]
     lines += guarded("displacement", lambda i, a, n: ([f"{a}.initial(sig, {p(i)}, {z(i, n)})"]
                                                       if has(rows[i][1], "initial") else [])
                      + [f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})",

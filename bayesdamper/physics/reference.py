@@ -145,13 +145,15 @@ def simulate_two_state(
     dp0: float = 0.0,
     t0: float | None = None,
     accumulator_conductance: float = 1e-8,
+    kappa: float = 1.0,
     rtol: float = 1e-8,
     atol: float = 1e-3,
 ) -> TwoStateSolution:
     """Two-state reference model eq. (1) with an optional accumulator, by scipy ``Radau``.
 
-    ``dp_i/dt = (B(p_i)/V_i) (±(A_P dy_P/dt - Q_O) + Q_A,i)`` with B from eq. (3) (reference
-    pressure p_R, ratio α_V; written as ``B_0 (1+α_V) p^2 / (α_V p^2 + B_0 p_R)``, finite at p = 0),
+    ``dp_i/dt = (B(p_i)/V_i) (±(A_P dy_P/dt - Q_O) + Q_A,i)`` with B from eq. (2) written about the charge
+    state (ratio α_V at p_R, polytropic exponent κ:
+    ``B_0 [1 + (p_R/p)^(1/κ)/α_V] / [1 + (B_0/(κ p_R)) (p_R/p)^((κ+1)/κ)/α_V]``, p floored at 1e4 Pa),
     Q_O from eq. (8) and the accumulator refill ``Q_A,i = G max(p_R - p_i, 0)`` through a check
     valve of conductance G. The pressures start at ``p_1 = p_R + max(dp0, 0)``,
     ``p_2 = p_R + max(-dp0, 0)`` (loaded chamber above p_R, the other at p_R, as eq. (6) assumes).
@@ -164,6 +166,8 @@ def simulate_two_state(
         α_V [-] and p_R [Pa]; p_R is also the accumulator pressure.
     accumulator_conductance : float
         Check-valve conductance G [m^3 s^-1 Pa^-1]; 0 disables the accumulator (pure eq. (1)).
+    kappa : float
+        Polytropic exponent κ of the gas [-], 1 to 1.4.
     rtol, atol : float
         Relative [-] and absolute [Pa] tolerance of ``solve_ivp``.
 
@@ -176,11 +180,15 @@ def simulate_two_state(
     t_out, window = _prepare(t_out, excitation, t0)
     area, v01, v02 = damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2
     b0, alpha_v, p_r = damper.liquid_bulk_modulus, dynamic.liquid_gas_ratio, dynamic.reference_pressure
+    if not (np.isfinite(kappa) and 1.0 <= kappa <= 1.4):
+        raise SettingsError(f"polytropic exponent must be in [1, 1.4], got {kappa}")
     g = float(accumulator_conductance)
     fl = flow.as_array().tolist()
 
     def bulk(p):
-        return b0 * (1.0 + alpha_v) * p * p / (alpha_v * p * p + b0 * p_r)
+        r = p_r / max(p, 1.0e4)
+        return b0 * (1.0 + r ** (1.0 / kappa) / alpha_v) / (1.0 + b0 / (kappa * p_r) * r ** ((kappa + 1.0) / kappa)
+                                                             / alpha_v)
 
     def rhs(t, x, yp, vel):
         p1, p2 = x

@@ -3,7 +3,7 @@
 :func:`simulate_effects` drives the compiled kernel of :mod:`bayesdamper.physics.compose` (the right-hand side
 of eq. (7) with every named effect's hooks) from a measured or synthetic displacement, piecewise linear (a
 triangular test) or polynomial (a smoothed measured record). The two-state model eq. (1) is the composition
-with the ``accumulator`` effect (absolute chamber pressures refilled from an accumulator at p_R):
+with the ``two_state`` effect (absolute chamber pressures refilled from an accumulator at p_R):
 :func:`two_state_effects`.
 """
 
@@ -38,14 +38,15 @@ def effect_argument(effects: Mapping[str, Mapping[str, float] | None] | None) ->
 
 
 def two_state_effects(dynamic: DynamicParameters, effects: Mapping[str, Mapping[str, float] | None] | None,
-                      accumulator_conductance: float) -> dict:
-    """Effects that make eq. (7) the two-state model eq. (1): the ``accumulator`` charged to p_R with check-valve
-    conductance G [m^3 s^-1 Pa^-1], plus ``effects``."""
+                      accumulator_conductance: float, kappa: float = 1.0) -> dict:
+    """Effects that make eq. (7) the two-state model eq. (1): ``two_state`` (accumulator at p_R, check-valve
+    conductance G [m^3 s^-1 Pa^-1], polytropic exponent ``kappa``), plus ``effects``. ``dynamic`` is accepted for
+    the call sites' symmetry with :func:`~bayesdamper.physics.reference.simulate_two_state` (p_R is the window's)."""
     g = float(accumulator_conductance)
     if not (math.isfinite(g) and g > 0):
         raise SettingsError(f"accumulator conductance must be finite and > 0, got {accumulator_conductance}")
     out = {k: dict(v or {}) for k, v in (effects or {}).items()}
-    out["accumulator"] = {"charge_pressure_Pa": float(dynamic.reference_pressure), "conductance_m3_per_s_Pa": g}
+    out["two_state"] = {"polytropic_exponent": float(kappa), "refill_conductance_m3_per_s_Pa": g}
     return out
 
 

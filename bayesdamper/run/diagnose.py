@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.diagnosis.attribution import screening_subset
 from bayesdamper.diagnosis.calibrated import (
     baseline_residuals,
@@ -24,6 +24,7 @@ from bayesdamper.diagnosis.calibrated import (
     stage_one_for,
     window_noise_dict,
 )
+from bayesdamper.diagnosis.comparison import DEFAULT_MODELS, compare_models, comparison_text
 from bayesdamper.diagnosis.engine import ProfileEngine
 from bayesdamper.diagnosis.loop import report_text, select_effects
 from bayesdamper.diagnosis.residual import describe_residual, structure_test, summarise_structure
@@ -120,7 +121,8 @@ def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
 class Prepared:
     """One data set made ready for the search: windows, calibrated baseline, residual structure and signature,
     candidate list, and the search problems (a fresh :class:`ProfileEngine` from :meth:`engine` each time: an
-    engine's workers see the problems of the engine built last)."""
+    engine's workers see the problems of the engine built last). ``compare``: the search step also compares the
+    base models (:mod:`bayesdamper.diagnosis.comparison`), its result then in ``comparison``."""
 
     ds: object
     segs: tuple
@@ -148,6 +150,8 @@ class Prepared:
     credible_mass: float
     progress: Progress
     t0: float
+    compare: bool = True
+    comparison: dict | None = None
 
     @property
     def speeds(self) -> list[float]:
@@ -168,8 +172,9 @@ class Prepared:
 
 
 def check_effects(effects: list[str] | None) -> list[str]:
-    """The library effects to search (all but the generic one by default); SettingsError for an unknown name."""
-    names = [n for n in EFFECTS if n != GENERIC] if not effects else list(effects)
+    """The library effects to search (by default every candidate but the generic one); SettingsError for an unknown
+    name."""
+    names = [n for n in EFFECTS if n != GENERIC and EFFECTS[n].candidate] if not effects else list(effects)
     unknown = [n for n in names if n not in EFFECTS]
     if unknown:
         raise SettingsError(f"--effects: unknown effect(s) {', '.join(unknown)}; choose from {', '.join(EFFECTS)}")
@@ -179,10 +184,11 @@ def check_effects(effects: list[str] | None) -> list[str]:
 def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] | None = None,
                       workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
                       max_steps: int | None = None, progress: Progress | None = None, tests: list[str] | None = None,
-                      mode: str = "auto", plan=None) -> Prepared:
+                      mode: str = "auto", plan=None, compare: bool = True) -> Prepared:
     """Steps 1-2 of the diagnosis of one data set: the calibrated baseline (re-used from ``identify`` posteriors
     in ``out`` of the same settings), the residual structure and dynamics, the candidates and the search
-    problems. ``plan``: the data set already planned (:func:`bayesdamper.run.plan.plan_dataset`)."""
+    problems. ``plan``: the data set already planned (:func:`bayesdamper.run.plan.plan_dataset`); ``compare``:
+    the search step compares the base models too (:func:`search_effects`)."""
     t0 = time.perf_counter()
     progress = progress or Progress()
     names = check_effects(effects)
@@ -268,18 +274,53 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
                     rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
-                    seed, credible_mass, progress, t0)
+                    seed, credible_mass, progress, t0, compare=compare)
+
+
+def _loop_values(rounds: list, effect: str) -> dict | None:
+    """The first round's fit of ``effect`` alone (its shared parameters' optima), or None if the loop had none."""
+    for row in (rounds[0].get("candidates") or []) if rounds else []:
+        if row.get("effect") == effect and not row.get("pair"):
+            vals = {k: (v or {}).get("median") for k, v in (row.get("params") or {}).items()}
+            if vals and all(isinstance(v, float | int) and np.isfinite(v) for v in vals.values()):
+                return {k: float(v) for k, v in vals.items()}
+    return None
+
+
+def compare_base_models(p: Prepared, engine: ProfileEngine, rounds: list) -> dict:
+    """The base models compared by held-out prediction on the search's engine
+    (:func:`bayesdamper.diagnosis.comparison.compare_models`), every re-fit starting from the baseline; the two-state
+    search starts from the loop's own fit of it when there is one. A failure is reported in the result."""
+    starts = {m.fitted: v for m in DEFAULT_MODELS if m.fitted and (v := _loop_values(rounds, m.fitted))}
+
+    def say(msg: str) -> None:
+        p.progress(msg)
+        p.progress.advance()
+
+    t0 = time.perf_counter()
+    try:
+        return compare_models(engine, p.forces, [w.kind for w in p.windows], p.speeds, p.flow_for, effect_argument,
+                              p.ds.damper.liquid_bulk_modulus, starts=starts, warm=p.warm, progress=say)
+    except BayesDamperError as err:
+        return {"error": str(err), "wall_time_s": time.perf_counter() - t0}
 
 
 def search_effects(p: Prepared) -> tuple[list, dict, list]:
-    """Step 2's select-and-refit loop on ``p``: ``(selected labels, {effect: values}, rounds)``."""
+    """Step 2's select-and-refit loop on ``p``: ``(selected labels, {effect: values}, rounds)``; then, unless
+    ``p.compare`` is false, the base models' comparison on the same engine (into ``p.comparison``)."""
     engine = p.engine()
-    with p.progress.phase(f"diagnose: candidate effects ({p.ds.name})", unit="fit"):
-        try:
+    try:
+        with p.progress.phase(f"diagnose: candidate effects ({p.ds.name})", unit="fit"):
             selected, fixed, rounds = select_effects(engine, p.names, p.forces, p.flow_for, p.progress, p.speeds)
-        finally:
-            engine.close()
-        p.progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
+            p.progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
+        if p.compare:
+            with p.progress.phase("diagnose: model comparison", total=len(DEFAULT_MODELS), unit="model"):
+                p.comparison = compare_base_models(p, engine, rounds)
+                p.progress.note("best held out: " + ", ".join(
+                    f"{kind} {v['winner']}" for kind, v in p.comparison["verdict"].items())
+                    if "error" not in p.comparison else f"failed: {p.comparison['error']}")
+    finally:
+        engine.close()
     return selected, fixed, rounds
 
 
@@ -316,6 +357,8 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
                                     p.structure, signature, rounds, selected, fixed, p.names, p.settings,
                                     final_settings(p.settings), p.credible_mass, p.seed, p.prov)
     diagnosis.update(extra or {})
+    if p.comparison is not None:
+        diagnosis["model_comparison"] = p.comparison
     if p.static is not None and p.static.offset is not None:  # stage 1's finding: an offset in the plateaus
         value, se = p.static.offset_force(area)
         diagnosis["stage1_offset_N"] = {"value": value, "se": se, "held_at_zero": list(p.static.constrained)}
@@ -330,7 +373,8 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
             diagnosis["figures"] = write_diagnosis_figures(p.out_dir, windows, p.base, final, p.base_resid,
                                                            final_resid, diagnosis)
             ph.done = count_files(diagnosis["figures"])
-    close_diagnosis(p.out_dir, diagnosis, report_text(diagnosis), time.perf_counter() - p.t0, quiet)
+    text = "\n".join([report_text(diagnosis), *comparison_text(diagnosis.get("model_comparison"))])
+    close_diagnosis(p.out_dir, diagnosis, text, time.perf_counter() - p.t0, quiet)
     return diagnosis
 
 
@@ -338,14 +382,15 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
 def run_diagnosis(data_dir: str, out: str, *, seed: int = 0, effects: list[str] | None = None,
                   workers: int = 0, tmax: float = 3.0, credible_mass: float = 0.9,
                   max_steps: int | None = None, figures: bool = True, quiet: bool = False,
-                  tests: list[str] | None = None, mode: str = "auto") -> dict:
+                  tests: list[str] | None = None, mode: str = "auto", compare: bool = True) -> dict:
     """``bayesdamper diagnose``: baseline, residual structure, candidate effects, loop, final model (with one BLAS
     thread per process: :mod:`bayesdamper.run.threads`), on the windows of any data set.
 
     ``tests`` restricts the run to the named records (file stems) of the data set; ``mode`` as for ``identify``
-    (:mod:`bayesdamper.run.plan`).
+    (:mod:`bayesdamper.run.plan`); ``compare``: the base models' comparison by held-out prediction
+    (:mod:`bayesdamper.diagnosis.comparison`) in ``diagnosis.json`` (``model_comparison``) and the report text.
     """
     p = prepare_diagnosis(data_dir, out, seed=seed, effects=effects, workers=workers, tmax=tmax,
                           credible_mass=credible_mass, max_steps=max_steps,
-                          progress=Progress(False if quiet else None), tests=tests, mode=mode)
+                          progress=Progress(False if quiet else None), tests=tests, mode=mode, compare=compare)
     return finish_diagnosis(p, *search_effects(p), figures=figures, quiet=quiet)

@@ -107,11 +107,15 @@ class Effect:
         One-line physical reading.
     params : tuple of EffectParam
         The effect's parameters, all shared across the tests of a data set.
+    candidate : bool
+        The diagnosis offers it as an explanation of a residual (false for a base-model variant kept for the
+        model comparison only, such as the constant bulk modulus).
     """
 
     name: str
     description: str
     params: tuple[EffectParam, ...]
+    candidate: bool = True
 
     @property
     def param_names(self) -> tuple[str, ...]:

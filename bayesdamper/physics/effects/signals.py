@@ -15,6 +15,8 @@ signals they need by these indices (SI units):
 ``P1``    absolute chamber pressures p_1, ``P2`` p_2 [Pa] (NaN unless an effect supplies them);
           ``DP1``, ``DP2`` their time derivatives [Pa/s]
 ``V1``    chamber volumes V_1, ``V2`` V_2 [m^3]
+``PR``    the window's reference pressure p_R [Pa], ``AV`` its liquid-gas ratio α_V [-], ``BL`` the liquid bulk
+          modulus B_0 [Pa] (constants of the solve)
 ========  ===========================================================================
 
 Hook protocol (every hook is optional; ``z`` is the effect's slice of the state vector, ``p`` its
@@ -25,6 +27,8 @@ the state derivative it must fill):
 * ``compliance(p) -> c``: a series compliance [m/N] (the kernel adds them);
 * ``flow(sig, z, p, dz) -> q``: the flow path, from sig[Q];
 * ``pressures(sig, z, p) -> (p1, p2)``: absolute chamber pressures (replaces the rule of eq. (6));
+* ``moduli(sig, z, p) -> (b1, b2)``: the chambers' bulk moduli [Pa] (replaces eq. (3) at the pressures; at most one
+  effect);
 * ``chamber_flows(sig, z, p) -> (q1, q2)``: extra inflows into chambers 1 and 2 [m^3/s];
 * ``derivatives(sig, z, p, dz)``: state derivatives not written by the hooks above;
 * ``force(sig, z, p) -> f``: a force added to the measured force [N];
@@ -38,11 +42,11 @@ the state derivative it must fill):
 
 from __future__ import annotations
 
-__all__ = ["AA", "DDP", "DP", "DP1", "DP2", "N_SIGNALS", "P1", "P2", "PRESSURE_FLOOR_PA", "Q", "QO", "T", "V1", "V2",
-           "VA", "VP", "YA", "YP"]
+__all__ = ["AA", "AV", "BL", "DDP", "DP", "DP1", "DP2", "N_SIGNALS", "P1", "P2", "PR", "PRESSURE_FLOOR_PA", "Q", "QO",
+           "T", "V1", "V2", "VA", "VP", "YA", "YP"]
 
-T, YA, VA, YP, VP, DP, DDP, QO, Q, P1, P2, DP1, DP2, V1, V2, AA = range(16)
+T, YA, VA, YP, VP, DP, DDP, QO, Q, P1, P2, DP1, DP2, V1, V2, AA, PR, AV, BL = range(19)
 #: Length of the signal vector.
-N_SIGNALS = 16
+N_SIGNALS = 19
 #: Absolute pressure below which the bulk modulus is evaluated at this floor [Pa] (about vapour pressure).
 PRESSURE_FLOOR_PA = 1.0e4
