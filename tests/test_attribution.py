@@ -125,3 +125,37 @@ def test_marginal_sds_of_a_ridge():
     assert np.all(sd > 3.0 * cond)
     at_bound = marginal_sds(objective, np.array([0.01, 2.0]), lo, hi, cond)
     assert at_bound[0] == cond[0]
+
+
+def _last_resort_case(generic_folds, physical_folds, physical_passes, folds=True):
+    from bayesdamper.diagnosis.candidates import CandidateSpec
+    from bayesdamper.diagnosis.loop import unnamed_last_resort
+
+    specs = {"unnamed_dynamics@flow": CandidateSpec("unnamed_dynamics@flow"),
+             "two_state": CandidateSpec("two_state"), "friction": CandidateSpec("friction")}
+
+    def row(effect, score, per_fold, passes):
+        sc = LovoScore(float(sum(per_fold)), 1.0, tuple(per_fold))
+        return {"effect": effect, "score": score, "passes": passes, "supported": passes, "lovo": sc.as_dict(),
+                "_lovo": sc}
+
+    gen = row("unnamed_dynamics@flow", -900.0, generic_folds, True)
+    phys = row("two_state", -800.0, physical_folds, physical_passes)
+    weak = row("friction", -5.0, [-1.0, -2.0, -1.0, -3.0, -2.0], False)
+    return unnamed_last_resort(gen, [gen, phys, weak], [], specs, None, [0] if folds else None, [], {}, None, None,
+                               None, {})
+
+
+def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sample():
+    # clearly better than the two-state model in every fold (paired gains 40 +- small): named
+    best, rec = _last_resort_case([60.0, 70.0, 65.0, 80.0, 75.0], [20.0, 25.0, 30.0, 35.0, 30.0], True)
+    assert best["effect"] == "unnamed_dynamics@flow" and rec["kept"] and not rec["indistinguishable_from"]
+    # within the margin of the two-state model, which passes on its own: the physics is named instead
+    best, rec = _last_resort_case([30.0, 25.0, 40.0, 20.0, 35.0], [28.0, 30.0, 33.0, 25.0, 31.0], True)
+    assert best["effect"] == "two_state" and not rec["kept"] and "two_state" in rec["indistinguishable_from"]
+    # within the margin, and no physical option passes: nothing is named
+    best, rec = _last_resort_case([30.0, 25.0, 40.0, 20.0, 35.0], [28.0, 30.0, 33.0, 25.0, 31.0], False)
+    assert best is None and not rec["kept"]
+    # without speed folds there is no out-of-sample comparison: a passing physical option wins
+    best, rec = _last_resort_case([60.0, 70.0, 65.0, 80.0, 75.0], [20.0, 25.0, 30.0, 35.0, 30.0], True, folds=False)
+    assert best["effect"] == "two_state"

@@ -79,6 +79,16 @@ def report_text(d: dict) -> str:
                 a = c["against_runner_up"]
                 lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
                              f"(se {a['se']:.1f})")
+    for r in d.get("rounds", []):
+        lr = r.get("last_resort")
+        if lr:
+            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f})" if "gain_over" in x
+                               else x["effect"] for x in lr["rivals"]) or "none fitted"
+            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gain over "
+                         f"each, named only above {lr['margin_se']:g} se): {rivals}: "
+                         + ("named." if lr["kept"] else "not named")
+                         + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
+                            if lr["indistinguishable_from"] else "."))
     for r in (d.get("rounds") or [])[-1:]:
         for b in r.get("backward_check") or []:
             lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "
@@ -131,6 +141,10 @@ def report_text(d: dict) -> str:
 
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
 PAIR_FROM = 3
+#: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
+PHYSICAL_RIVALS = 2
+#: The generic effect (dynamics no named effect holds) and the two-state physics the loop checks first.
+GENERIC, TWO_STATE = "unnamed_dynamics", "two_state"
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
 LOVO_OPTIONS = 3
 #: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality) ...
@@ -207,7 +221,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     sel_specs: list[CandidateSpec] = []
     fixed: dict = {}
     rounds = []
-    remaining = list(specs)
+    # the paper's own simplification first: the two-state physics, then the library, the generic forms last
+    remaining = sorted(specs, key=lambda lab: (specs[lab].effect != TWO_STATE, _generic(lab, specs)))
     folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
     for rnd in range(MAX_ROUNDS):
         if not remaining:
@@ -273,12 +288,17 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
         scored = sorted((r for r in rows if "_lovo" in r), key=lambda r: -r["_lovo"].gain)
         rival = next((r for r in scored if best is None or r["effect"] != best["effect"]), None)
-        if best is not None and rival is not None and "_lovo" in best:
+        last_resort = None
+        if best is not None and _generic(best["effect"], specs):
+            progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
+            best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
+                                                    current["sse"], n_eff, flow_for, lovo_cache)
+        if best is not None and rival is not None and "_lovo" in best and rival is not best:
             best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}
         for r in rows:
             r.pop("_lovo", None)
         rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": rows,
-                       "selected": best["effect"] if best else None,
+                       "selected": best["effect"] if best else None, "last_resort": last_resort,
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
                                f"{MIN_J_REDUCTION:.0%}; a pair also over its better member), every held-out speed "
                                f"fold better (from {LOVO_SIGN_TEST_FOLDS} folds: the sign test at <= 3 %) and with "
@@ -311,6 +331,52 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if rounds:
             rounds[-1]["backward_check"] = dropped
     return selected, fixed, rounds
+
+
+def _generic(label: str, specs: dict) -> bool:
+    """The option ``label`` (a candidate or a pair ``a+b``) holds the generic effect."""
+    return any(specs[lab].effect == GENERIC for lab in label.split("+") if lab in specs)
+
+
+def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, engine, folds, sel_specs: list,
+                        fixed: dict, current_sse, n_eff, flow_for, cache: dict) -> tuple[dict | None, dict]:
+    """The generic option ``best`` against the best physical explanations (library effects and the two-state model,
+    alone or in pairs): it stays selected only if its leave-velocities-out gain exceeds that of each of the
+    :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than :data:`LOVO_SE` standard errors of
+    the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: a one-sided test at about
+    2.3 % under normality, the same margin as the out-of-sample rule itself). Otherwise the physical option that
+    passes the rule with the largest gain is selected instead, or none. Without speed folds there is no
+    out-of-sample comparison: a physical option that passes wins. Returns the option selected and a record
+    (``generic``, each rival's paired gain and se, ``indistinguishable_from``, ``kept``)."""
+    physical = [r for r in rows if not _generic(r["effect"], specs) and not r.get("held_selected")]
+    physical = sorted(physical, key=lambda r: r["score"])[:PHYSICAL_RIVALS]
+    record = {"generic": best["effect"], "margin_se": LOVO_SE, "rivals": [], "indistinguishable_from": []}
+    kept = True
+    for r in physical:
+        if folds is None or "_lovo" not in best:
+            kept = kept and not r["passes"]
+            record["rivals"].append({"effect": r["effect"], "passes": r["passes"]})
+            continue
+        if "_lovo" not in r:
+            fit = next(c for c in fits if c.effect == r["effect"])
+            cand = sel_specs + [specs[lab] for lab in fit.labels]
+            r["_lovo"] = lovo_score(engine, folds, cand, fit.effects, sel_specs, fixed, current_sse, n_eff,
+                                    flow_for, effect_argument, cache)
+            r["lovo"] = r["_lovo"].as_dict()
+        pr = paired(best["_lovo"], r["_lovo"])
+        beats = bool(np.isfinite(pr["se"]) and pr["gain"] > LOVO_SE * pr["se"])
+        record["rivals"].append({"effect": r["effect"], "passes": r["passes"], "gain_over": pr["gain"],
+                                 "se": pr["se"], "beats": beats})
+        if not beats:
+            record["indistinguishable_from"].append(r["effect"])
+        kept = kept and beats
+    record["kept"] = kept
+    if kept:
+        return best, record
+    best["passes"] = False
+    best["not_named"] = "a physical explanation predicts the held-out speeds as well"
+    passing = [r for r in physical if r["passes"]]
+    return (max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None), record
 
 
 def backward_check(engine, selected: list, sel_specs: list, fixed: dict, current: dict, forces, flow_for,
