@@ -201,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-steps", type=int, default=None,
                    help=f"emcee step budget per ensemble [steps] (default: {max_steps})")
     g.add_argument("--no-figures", action="store_true", help="skip the figures (default: write them)")
+    g.add_argument("--no-compare", action="store_true",
+                   help="skip the comparison of eq. (6), a constant bulk modulus and the two-state model by held-out "
+                        "prediction (one data set; default: compare)")
     g.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
                    help=_MODE_HELP)
     r = sub.add_parser("predict", help="run a calibrated damper on a displacement history, with bands",
@@ -257,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
                       "credible_mass": args.credible_mass, "max_steps": args.max_steps,
                       "figures": not args.no_figures, "mode": args.mode}
                 if len(args.data_dir) == 1:
-                    run_diagnosis(args.data_dir[0], args.out, **kw)
+                    run_diagnosis(args.data_dir[0], args.out, **kw, compare=not args.no_compare)
                 else:
                     run_conditions(args.data_dir, args.out, **kw)
             elif args.command == "predict":

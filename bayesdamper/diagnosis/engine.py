@@ -5,12 +5,14 @@ A window's own parameters x are (log α_V, log p_R), plus the start force of a w
 flow coefficients of a data set without plateaus (:class:`~bayesdamper.inference.problem.EffectsProblem`).
 :class:`ProfileEngine` evaluates S_k(ψ), the per-window sums of squares of eq. (9) at their least-squares x, with
 worker processes; each re-fit carries its window's Jacobian from the last one
-(:mod:`bayesdamper.diagnosis.inner_fit`). :func:`_profile_lm` refines the shared parameters of a candidate
-(:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
+(:mod:`bayesdamper.diagnosis.inner_fit`). :meth:`ProfileEngine.evaluate_at` solves every window once at given own
+parameters instead (a held-out prediction, :mod:`bayesdamper.diagnosis.comparison`). :func:`_profile_lm` refines the
+shared parameters of a candidate (:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
 """
 
 from __future__ import annotations
 
+import math
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -88,6 +90,18 @@ def _inner_fit(args):
     if r is None:
         return x_hat, 1e300, None, None
     return x_hat, float(r @ r), r, None
+
+
+def _solve_at(args):
+    """SSE and residual (model − measured) of one window at GIVEN own parameters x, no re-fit (worker task);
+    (inf, None) when the solve fails."""
+    k, eff, flow, x = args
+    prob = _PROBLEMS[k]
+    f, ok = prob.simulate_inner(np.asarray(x, dtype=float), eff, flow)
+    if not ok or not np.all(np.isfinite(f)):
+        return math.inf, None
+    r = f - prob.force
+    return float(r @ r), r
 
 
 def _psi_columns(args):
@@ -175,6 +189,16 @@ class ProfileEngine:
         if keep and idx is None:
             self.warm[:self.n] = list(xs)
         return sse, xs, [o[2] for o in out]
+
+    def evaluate_at(self, eff, flow, xs, idx=None):
+        """Per-window SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients) with each window's own
+        parameters GIVEN: ``xs`` one x per window of ``idx`` (None: all windows), solved once each, not re-fitted
+        (a held-out prediction). A failed solve gives SSE inf and residual None. Leaves the warm starts and the
+        carried Jacobians alone."""
+        ks = range(self.n) if idx is None else [int(i) for i in idx]
+        tasks = [(k, eff, flow, np.asarray(x, dtype=float)) for k, x in zip(ks, xs, strict=True)]
+        out = self._map(_solve_at, tasks)
+        return np.array([o[0] for o in out]), [o[1] for o in out]
 
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from bayesdamper._version import __version__
 from bayesdamper.io.outputs import atomic_write_bytes
+from bayesdamper.report.html_comparison import comparison_table
 from bayesdamper.report.html_law import conditions_block, law_table, prediction_check, record_drift_table
 from bayesdamper.report.html_parts import (
     _PARAMS,
@@ -410,6 +411,7 @@ def _calibrated_blocks(diagnosis, mass: float) -> list[str]:
         out.append("<p>The drift law with the selected effects:</p>" + law_table(diagnosis["drift_model_after"], mass))
     out.append(prediction_check(diagnosis.get("prediction_check")))
     out.append(conditions_block(diagnosis.get("conditions")))
+    out.append(comparison_table(diagnosis.get("model_comparison")))
     return out
 
 

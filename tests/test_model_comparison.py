@@ -1,0 +1,223 @@
+"""The model comparison: the drift-law prediction of a held-out speed, the verdict rule, the held-out J of the true
+model on noise-free eq. (7) data, and the result's JSON form."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
+from bayesdamper.diagnosis.comparison import (
+    ALL,
+    BASE,
+    BaseModel,
+    compare_models,
+    comparison_text,
+    drift_line,
+    held_out_parameters,
+    law_value,
+    log_alpha_for_modulus,
+    modulus,
+    speed_folds,
+    verdict,
+)
+from bayesdamper.diagnosis.engine import ProfileEngine
+from bayesdamper.inference.problem import EffectsProblem
+from bayesdamper.physics.excitation import PiecewiseLinear, as_drive
+from bayesdamper.physics.single_state import simulate_single_state
+from bayesdamper.physics.with_effects import effect_argument
+
+D, FLOW = RIG_A_DAMPER, PAPER_FLOW
+AMPLITUDE, REST, WINDOW_S, RATE = 5.0e-3, 1.0, 2.0, 100.0
+SPEEDS = (0.5e-3, 0.75e-3, 1.0e-3, 1.5e-3)
+#: The exact drift law of the synthetic data: log α_V and log p_R linear in log(v / 1 mm/s).
+ALPHA_1, ALPHA_SLOPE, P_R_1, P_R_SLOPE = 30.0, -0.3, 3.0e5, 0.4
+
+
+def true_pair(v: float) -> tuple[float, float]:
+    s = math.log(v / 1e-3)
+    return ALPHA_1 * math.exp(ALPHA_SLOPE * s), P_R_1 * math.exp(P_R_SLOPE * s)
+
+
+def synthetic_windows():
+    """Per speed a start from rest and the first reversal, eq. (7) with (α_V, p_R) on the exact law, no noise."""
+    problems, kinds, speeds, truth = [], [], [], []
+    for v in SPEEDS:
+        exc = PiecewiseLinear.triangle(AMPLITUDE, v, rest=REST, cycles=1.25)
+        alpha, p_r = true_pair(v)
+        starts = {"initial": REST, "reversal": REST + AMPLITUDE / v}
+        grids = {k: t0 + np.arange(0.0, WINDOW_S, 1.0 / RATE) for k, t0 in starts.items()}
+        t_all = np.unique(np.concatenate([np.arange(0.0, REST, 0.1), *grids.values()]))
+        dp = simulate_single_state(t_all, exc, D, FLOW, DynamicParameters(alpha, p_r), dp0=0.0, t0=0.0)
+        force = D.piston_area * dp
+        for kind, t in grids.items():
+            sel = np.searchsorted(t_all, t)
+            f = force[sel]
+            problems.append(EffectsProblem(f"v{v * 1e3:.2f}_{kind}", t, f, float(t[0]), float(f[0]), 0.0,
+                                           as_drive(exc), D, FLOW))
+            kinds.append(kind)
+            speeds.append(v)
+            truth.append((alpha, p_r))
+    return problems, kinds, speeds, truth
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return synthetic_windows()
+
+
+def _engine(problems, truth):
+    # warm starts away from the truth: the in-sample fits must find it
+    warm = [p.inner_start(a * 1.3, pr * 0.7) for p, (a, pr) in zip(problems, truth, strict=True)]
+    return ProfileEngine(problems, warm, workers=1)
+
+
+# ------------------------------------------------------------------------------------------- the drift law
+
+
+def test_drift_line_recovers_a_known_line_and_predicts_the_held_out_speed():
+    rng = np.random.default_rng(3)
+    ls = np.log(np.array([0.5, 0.6, 0.8, 1.0, 1.2, 1.5]) * 1e-3)
+    y = 2.0 - 0.7 * ls
+    line = drift_line(ls, y)
+    assert line["slope"] == pytest.approx(-0.7, abs=1e-12) and line["intercept"] == pytest.approx(2.0, abs=1e-9)
+    assert line["se"] == pytest.approx(0.0, abs=1e-9) and line["n_speeds"] == 6
+    # with scatter: the standard error is that of ordinary least squares
+    noisy = y + 0.05 * rng.standard_normal(y.size)
+    fit = np.polyfit(ls, noisy, 1, cov=True)
+    line = drift_line(ls, noisy)
+    assert line["slope"] == pytest.approx(fit[0][0]) and line["se"] == pytest.approx(math.sqrt(fit[1][0, 0]))
+    # one speed: the median; none: no law
+    one = drift_line([0.1, 0.1, 0.1], [1.0, 5.0, 2.0])
+    assert one["slope"] is None and law_value(one, 7.0) == 2.0
+    assert math.isnan(law_value(drift_line([], []), 0.0))
+
+
+def test_held_out_parameters_follow_each_kinds_line_from_the_other_speeds():
+    speeds = np.repeat([0.5e-3, 0.7e-3, 1.0e-3, 1.4e-3], 2)
+    kinds = ["initial", "reversal"] * 4
+    ls = np.log(speeds)
+    # a different exact line per kind; a bad estimate at the held-out speed itself must not matter
+    u = np.column_stack([np.where(np.array(kinds) == "initial", 3.0 - 0.2 * ls, 1.0 + 0.5 * ls),
+                         np.where(np.array(kinds) == "initial", 12.0 + 0.1 * ls, 13.0 - 0.3 * ls)])
+    truth = u.copy()
+    folds = speed_folds(speeds)
+    assert [f.tolist() for f in folds] == [[0, 1], [2, 3], [4, 5], [6, 7]]
+    u[2] += 5.0  # the held-out window's own estimate is wrong: its prediction comes from the others
+    pred, source = held_out_parameters(u, np.ones(8, dtype=bool), kinds, ls, folds)
+    assert np.allclose(pred[2], truth[2], atol=1e-9)  # predicted from the three other speeds' exact line
+    assert source[2] == "line, initial" and source[3] == "line, reversal"
+    # the other windows' predictions use the wrong estimate of window 2 in their training: only the initial ones
+    assert np.allclose(pred[[1, 3, 5, 7]], truth[[1, 3, 5, 7]], atol=1e-9)
+    assert not np.allclose(pred[[0, 4, 6]], truth[[0, 4, 6]], atol=1e-3)
+    # a kind with no training window of its kind takes the law of every kind; a training set of one speed: median
+    pred, source = held_out_parameters(truth[:4], np.ones(4, dtype=bool), ["initial", "initial", "reversal",
+                                                                           "initial"], ls[:4], speed_folds(speeds[:4]))
+    assert source[2] == "median, all kinds" and np.allclose(pred[2], np.median(truth[[0, 1]], axis=0))
+    assert source[0] == "median, initial" and np.allclose(pred[0], truth[3])
+
+
+def test_modulus_inversion_round_trips():
+    b0 = D.liquid_bulk_modulus
+    for a, pr in ((30.0, 3e5), (5.0, 1e5), (200.0, 8e5)):
+        b = float(modulus(math.log(a), math.log(pr), b0))
+        assert log_alpha_for_modulus(b, pr, b0) == pytest.approx(math.log(a), abs=1e-9)
+    assert log_alpha_for_modulus(2 * b0, 3e5, b0) == math.inf and log_alpha_for_modulus(1e5, 3e5, b0) == -math.inf
+
+
+# ------------------------------------------------------------------------------------------- the verdict
+
+
+def test_eq6_suffices_when_the_paired_differences_are_within_the_margin():
+    eq6 = [0.10, 0.12, 0.11, 0.13, 0.09]
+    other = [0.098, 0.123, 0.107, 0.132, 0.089]  # differences of both signs, mean -0.0006
+    v = verdict({BASE: float(np.mean(eq6)), "other": float(np.mean(other))}, {BASE: eq6, "other": other})
+    d = np.array(other) - np.array(eq6)
+    margin = 2 * np.std(d, ddof=1) / math.sqrt(d.size)
+    a = v["against"]["other"]
+    assert a["margin"] == pytest.approx(margin) and a["n_folds"] == 5
+    assert a["lower_by"] == pytest.approx(float(np.mean(eq6) - np.mean(other)))
+    assert 0 < a["lower_by"] < margin and not a["clearly_better"]
+    assert v["winner"] == "other" and v["base_suffices"]
+
+
+def test_eq6_does_not_suffice_when_another_model_is_clearly_better():
+    eq6 = [0.10, 0.20, 0.30, 0.40]
+    # a small but consistent gain in every fold: the folds' own spread (0.1) is no excuse, the paired one is tiny
+    other = [x - 0.005 + e for x, e in zip(eq6, (1e-4, -1e-4, 2e-4, 0.0), strict=True)]
+    worse = [x + 0.01 for x in eq6]
+    v = verdict({BASE: 0.25, "other": float(np.mean(other)), "worse": 0.26},
+                {BASE: eq6, "other": other, "worse": worse})
+    assert v["against"]["other"]["clearly_better"] and not v["against"]["worse"]["clearly_better"]
+    assert not v["base_suffices"] and v["winner"] == "other"
+    # folds without windows of the kind (None) are left out of the pairs; one pair forms no margin
+    v = verdict({BASE: 0.3, "other": 0.1}, {BASE: [None, 0.3], "other": [0.2, 0.1]})
+    assert v["against"]["other"]["n_folds"] == 1 and v["against"]["other"]["margin"] is None
+    assert v["base_suffices"] and v["winner"] == "other"
+
+
+# ------------------------------------------------------------------------------------------- on eq. (7) data
+
+
+def test_true_model_predicts_held_out_speeds_to_the_noise_floor(synthetic):
+    problems, kinds, speeds, truth = synthetic
+    engine = _engine(problems, truth)
+    forces = [p.force for p in problems]
+    # eq. (6) is the true model; a fixed friction of 300 N is a wrong one (its per-window fits absorb part of it)
+    models = (BaseModel(BASE, "eq. (7) with eq. (6)"),
+              BaseModel("friction300", "with 300 N friction", {"friction": {"coulomb_N": 300.0}}))
+    res = compare_models(engine, forces, kinds, speeds, lambda e: None, effect_argument, D.liquid_bulk_modulus,
+                         models=models)
+    eq6 = res["models"][BASE]
+    for w, (a, pr) in zip(eq6["windows"], truth, strict=True):
+        assert w["alpha_V"] == pytest.approx(a, rel=2e-3) and w["p_R_Pa"] == pytest.approx(pr, rel=2e-3)
+        assert w["alpha_V_predicted"] == pytest.approx(a, rel=5e-3)  # the law of the other speeds
+        assert w["J_held_out"] < 2e-3, w
+    for kind in ("initial", "reversal"):
+        drift = eq6["in_sample"]["by_kind"][kind]["drift"]
+        assert drift["log_alpha_V"]["slope"] == pytest.approx(ALPHA_SLOPE, abs=5e-3)
+        assert drift["log_p_R"]["slope"] == pytest.approx(P_R_SLOPE, abs=5e-3)
+    assert eq6["held_out"]["J_pooled"] < 1e-3
+    wrong = res["models"]["friction300"]
+    assert wrong["held_out"]["J_pooled"] > 20 * eq6["held_out"]["J_pooled"] and wrong["held_out"]["J_pooled"] > 0.01
+    assert res["verdict"][ALL]["winner"] == BASE and res["verdict"][ALL]["base_suffices"]
+    assert len(res["folds"]) == len(SPEEDS)
+
+
+def test_a_wrong_drift_law_does_not_predict(synthetic):
+    """The same windows with the training estimates' law replaced by a constant: the held-out J is far above the
+    true law's (the comparison's held-out J measures the law, not the in-sample fit)."""
+    problems, kinds, speeds, truth = synthetic
+    engine = _engine(problems, truth)
+    x_true = [p.inner_start(a, pr) for p, (a, pr) in zip(problems, truth, strict=True)]
+    sse_true, _ = engine.evaluate_at(effect_argument({}), None, x_true)
+    a_med, p_med = np.median([t[0] for t in truth]), np.median([t[1] for t in truth])
+    x_flat = [p.inner_start(a_med, p_med) for p in problems]
+    sse_flat, _ = engine.evaluate_at(effect_argument({}), None, x_flat)
+    norms = np.array([float(p.force @ p.force) for p in problems])
+    assert math.sqrt(sse_true.sum() / norms.sum()) < 1e-3
+    assert math.sqrt(sse_flat.sum() / norms.sum()) > 0.01
+
+
+def test_result_is_json_and_text(synthetic):
+    problems, kinds, speeds, truth = synthetic
+    sub = [k for k, s in enumerate(speeds) if s in SPEEDS[1:3]]  # two speeds: a law of one speed per fold
+    engine = _engine([problems[k] for k in sub], [truth[k] for k in sub])
+    res = compare_models(engine, [problems[k].force for k in sub], [kinds[k] for k in sub], [speeds[k] for k in sub],
+                         lambda e: None, effect_argument, D.liquid_bulk_modulus,
+                         models=(BaseModel(BASE, "eq. (7) with eq. (6)"),
+                                 BaseModel("constant_bulk_modulus", "constant B", {"constant_bulk_modulus": {}},
+                                           modulus_only=True),
+                                 BaseModel("missing", "not in the library", {"no_such_effect": {}})))
+    text = json.dumps(res, allow_nan=False)
+    back = json.loads(text)
+    assert back["skipped"] == ["missing"] and back["order"] == [BASE, "constant_bulk_modulus"]
+    assert back["models"][BASE]["windows"][0]["law"].startswith("median")
+    assert set(back["verdict"]) == {"initial", "reversal", ALL}
+    lines = comparison_text(back)
+    assert any("Verdict" in ln for ln in lines) and any("const. B" in ln and "initial" in ln for ln in lines)
+    assert any("ridge of equal B" in ln for ln in lines)
+    assert comparison_text(None) == [] and "not made" in comparison_text({"error": "x"})[0]
