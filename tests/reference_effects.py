@@ -3,7 +3,10 @@
 This helper module (not a test file) extends :func:`independent.simulate` with the nine "effects" of the
 effect-composition spec, written from the equations alone so that bayesdamper's compiled effect kernel can be
 judged against data bayesdamper did not make, plus one pseudo-effect bayesdamper's library does not hold,
-``fluid_inertance`` (an effect "in a form the library does not hold"). It must never import ``bayesdamper``.
+``fluid_inertance`` (an effect "in a form the library does not hold"), a physical two-state base damper
+``two_state_damper`` and a compliant mount ``series_compliance`` (both below). It must never import
+``bayesdamper``, and the two-state base was written from the paper's eqs. (1)-(2) without reading the library's
+``two_state`` effect it is meant to judge.
 
 Model, SI units throughout. At time t, with the measured displacement y_A(t) and its velocity v_A(t):
 
@@ -18,6 +21,34 @@ Model, SI units throughout. At time t, with the measured displacement y_A(t) and
 * B(p) = B_0 (1 + α_V) / (α_V + B_0 p_R / p^2); eq. (6) picks B_1, B_2 from p_R and p_R + |Δp| and
   dΔp/dt = (B_1/V_1 + B_2/V_2) (A v_P - Q) (the ``accumulator`` replaces this by two absolute pressures);
 * force F = A Δp + the effects' force terms.
+
+The physical two-state base (``two_state_damper``, replaces eq. (7)/(6); α_V and p_R of the signature are then
+unused). States Δp = p_1 - p_2, p̄ = (p_1 + p_2)/2 (a linear map of the two absolute chamber pressures, reported
+as ``p_1``, ``p_2``) and the accumulator pressure p_a:
+
+* eq. (1): dp_1/dt = B(p_1)/V_1 (+A v_P - Q + r_1),  dp_2/dt = B(p_2)/V_2 (-A v_P + Q + r_2);
+* eq. (2) (:func:`polytropic_bulk_modulus`): B(p) = B_0 [1 + (1/α_V0)(p_0/p)^(1/κ)] /
+  [1 + (1/α_V0)(B_0/(κ p_0))(p_0/p)^((κ+1)/κ)], the free gas polytropic (exponent κ), its volume referenced to
+  ATMOSPHERIC pressure p_0 = 101325 Pa: α_V0 = V_L/V_G at p_0 (gas-to-liquid ratio (1/α_V0)(p_0/p)^(1/κ) at p);
+* refill r_i = q_line(p_a - p_i) + G_b (p_a - p_i): each chamber is fed from the accumulator through a restriction
+  (dp = q/G + R_T q^2: laminar conductance G, optional turbulent coefficient R_T, :func:`line_flow`) and a check
+  valve that opens only towards a chamber below p_a (no cracking pressure), plus an optional two-way bleed G_b;
+* the accumulator's gas (same κ, volume V_a0 at the precharge p_c): p_a V_a^κ = p_c V_a0^κ, so
+  dp_a/dt = -κ p_a (r_1 + r_2) / V_a(p_a), V_a(p) = V_a0 (p_c/p)^(1/κ);
+* start: chambers and accumulator at p_c in equilibrium, the loaded chamber at p_c + |Δp0| (as ``accumulator``).
+
+Choices: one line per chamber rather than one restriction feeding both check valves (the same whenever only one
+valve is open, which is the case after a velocity step: only the unloaded chamber falls below p_a); the liquid's
+volume is held at its p_0 value in eq. (2)'s numerator (as the paper's eq. (2)); no cavitation: below 100 Pa B is
+continued linearly to 0 at p = 0, which the pressures cannot cross (eq. (2) itself tends to κ p); volumetric flows
+are the same on both sides of the orifice (eq. (1)), so mass is conserved up to O(p/B_0).
+
+The mount (``series_compliance``, stiffness k_s): the actuator (y_A or the servo's output) drives the piston through
+a spring carrying A Δp, so y_P = y_act - (A/k_s) Δp and v_P = v_act - (A/k_s) dΔp/dt; writing the chamber
+equations as dp_1/dt = a_1 (A v_P + e_1), dp_2/dt = a_2 (-A v_P + e_2) (any base), dΔp/dt =
+[(a_1 + a_2) A v_act + a_1 e_1 - a_2 e_2] / (1 + (a_1 + a_2) A^2/k_s) (for eq. (7): K (A v_act - Q) / (1 + K A^2/k_s)
+as ``reference_cycles.simulate_compliant``). The load cell reads A Δp plus the sensor-side terms (offset, mains);
+friction, the gas spring and the unnamed filter are refused with it (their forces would deflect the mount too).
 
 State vector: Δp first, then the effects' states in the canonical order of :data:`EFFECT_PARAMS`
 (see :func:`state_names`). Inputs are the objects of ``independent.py`` (``displacement``, ``velocity``,
@@ -46,10 +77,16 @@ from independent import TriangleInput, bulk_modulus, orifice_flow, quasi_static_
 from scipy.integrate import solve_ivp
 
 __all__ = [
+    "BASES",
     "EFFECT_PARAMS",
     "EFFECT_STATES",
+    "NOT_WITH_MOUNT",
     "POPPET_EPSILON",
+    "alpha_for_gas_fraction",
+    "gas_fraction",
     "inertance_for_frequency",
+    "line_flow",
+    "polytropic_bulk_modulus",
     "resolve_effects",
     "simulate_effects",
     "state_names",
@@ -70,6 +107,11 @@ EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
     "unnamed_dynamics": {"gain": None, "natural_frequency_Hz": None, "damping_ratio": None, "threshold": 0.0,
                          "driver": 0, "law": 0, "placement": 0, "mode": 0},
     "fluid_inertance": {"inertance_kg_per_m4": None},
+    "two_state_damper": {"polytropic_exponent": None, "liquid_gas_ratio_atm": None, "charge_pressure_Pa": None,
+                         "accumulator_volume_m3": None, "line_conductance_m3_per_s_Pa": None,
+                         "line_turbulent_kg_per_m7": 0.0, "bleed_conductance_m3_per_s_Pa": 0.0,
+                         "atmospheric_pressure_Pa": 101325.0},
+    "series_compliance": {"stiffness_N_per_m": None},
 }
 
 #: Effect name -> names of its states (in state-vector order); effects not listed have no state.
@@ -79,12 +121,21 @@ EFFECT_STATES: dict[str, tuple[str, ...]] = {
     "accumulator": ("p_mean",),
     "unnamed_dynamics": ("w", "w_dot"),
     "fluid_inertance": ("q_l",),
+    "two_state_damper": ("p_mean", "p_acc"),
 }
+#: Effects that replace eq. (7)'s pressure equation by absolute chamber pressures: at most one of them.
+BASES = ("accumulator", "two_state_damper")
+#: Effects the series compliance cannot be combined with: their force would deflect the mount too (friction,
+#: gas spring, the unnamed filter's force) or their driver v_P would close an algebraic loop through the mount.
+NOT_WITH_MOUNT = ("gas_spring", "seal_friction", "unnamed_dynamics")
 
 #: ε of the poppet flow scaling (ε + clip(x, 0, 1)) / (ε + s(Δp)).
 POPPET_EPSILON = 0.1
 #: Floor of the absolute chamber pressure used in the accumulator's bulk modulus [Pa].
 ACCUMULATOR_P_FLOOR = 1e4
+#: Below this absolute pressure [Pa] the two-state base's B(p) of eq. (2) is continued linearly to B = 0 at p = 0
+#: (eq. (2) itself tends to κ p there): p = 0 is then a barrier the integration cannot cross (no cavitation model).
+TWO_STATE_P_FLOOR = 100.0
 #: Velocity scale of the seal friction's sign function tanh(v_P / V_SIGN) [m/s].
 FRICTION_V_SIGN = 1e-5
 
@@ -93,6 +144,10 @@ FRICTION_V_SIGN = 1e-5
 _PRESSURE_SCALE = 1e6
 _DRIVER_SCALES = {0: 1e6, 1: 1e-5, 2: 1e-2, 3: 1e-1}  # Δp [Pa], Q_O [m^3/s], y_P [m], v_P [m/s]
 _INTEGER_PARAMS = {"driver": (0, 1, 2, 3), "law": (0, 1, 2, 3), "placement": (0, 1), "mode": (0, 1)}
+_POSITIVE_PARAMS = ("span_Pa", "stribeck_velocity_m_s", "charge_pressure_Pa", "inertance_kg_per_m4",
+                    "liquid_gas_ratio_atm", "accumulator_volume_m3", "atmospheric_pressure_Pa")
+_NON_NEGATIVE_PARAMS = ("damping_ratio", "conductance_m3_per_s_Pa", "threshold", "line_conductance_m3_per_s_Pa",
+                        "line_turbulent_kg_per_m7", "bleed_conductance_m3_per_s_Pa")
 
 
 # ----------------------------------------------------------------------------- effect parameters
@@ -119,10 +174,12 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[s
     ------
     ValueError
         Unknown effect or parameter, missing required parameter, or a value outside its domain: all values
-        finite; frequencies, ``span_Pa``, ``stribeck_velocity_m_s``, ``charge_pressure_Pa`` and
-        ``inertance_kg_per_m4`` > 0; damping ratios, conductances and ``threshold`` >= 0; ``threshold`` > 0 for
-        law 3 (tanh(u / θ)); ``driver``, ``law`` in {0, 1, 2, 3}, ``placement`` and ``mode`` in {0, 1}
-        (integral values).
+        finite; frequencies, ``span_Pa``, ``stribeck_velocity_m_s``, ``charge_pressure_Pa``,
+        ``inertance_kg_per_m4``, ``liquid_gas_ratio_atm``, ``accumulator_volume_m3``, ``atmospheric_pressure_Pa``
+        and the mount's stiffness > 0; ``polytropic_exponent`` in [1, 2]; damping ratios, conductances,
+        ``line_turbulent_kg_per_m7`` and ``threshold`` >= 0; ``threshold`` > 0 for law 3 (tanh(u / θ)); ``driver``,
+        ``law`` in {0, 1, 2, 3}, ``placement`` and ``mode`` in {0, 1} (integral values); at most one of
+        :data:`BASES`; ``series_compliance`` with none of :data:`NOT_WITH_MOUNT`.
     """
     effects = {} if effects is None else effects
     unknown = sorted(set(effects) - set(EFFECT_PARAMS))
@@ -147,15 +204,22 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float]] | None) -> dict[s
             if param in _INTEGER_PARAMS:
                 _check(value in _INTEGER_PARAMS[param], name, param, value, f"one of {_INTEGER_PARAMS[param]}")
                 value = int(value)
-            elif param.endswith("_Hz") or param in ("span_Pa", "stribeck_velocity_m_s", "charge_pressure_Pa",
-                                                     "inertance_kg_per_m4"):
+            elif param == "polytropic_exponent":
+                _check(1.0 <= value <= 2.0, name, param, value, "in [1, 2]")
+            elif param.endswith("_Hz") or param in _POSITIVE_PARAMS or name == "series_compliance":
                 _check(value > 0.0, name, param, value, "> 0")
-            elif param in ("damping_ratio", "conductance_m3_per_s_Pa", "threshold"):
+            elif param in _NON_NEGATIVE_PARAMS:
                 _check(value >= 0.0, name, param, value, ">= 0")
             params[param] = value
         if name == "unnamed_dynamics" and params["law"] == 3:
             _check(params["threshold"] > 0.0, name, "threshold", params["threshold"], "> 0 with law 3")
         out[name] = params
+    bases = [b for b in BASES if b in out]
+    if len(bases) > 1:
+        raise ValueError(f"effects {bases} both replace the pressure equation: choose one")
+    clash = [n for n in NOT_WITH_MOUNT if n in out]
+    if "series_compliance" in out and clash:
+        raise ValueError(f"series_compliance cannot be combined with {clash} (see NOT_WITH_MOUNT)")
     return out
 
 
@@ -165,6 +229,44 @@ def state_names(effects: Mapping[str, Mapping[str, float]] | None) -> tuple[str,
     for name in resolve_effects(effects):
         names.extend(EFFECT_STATES.get(name, ()))
     return tuple(names)
+
+
+# ----------------------------------------------------------------------------- the physical two-state damper
+def polytropic_bulk_modulus(p, b0: float, alpha_v0: float, kappa: float, p_atm: float = 101325.0):
+    """Eq. (2): B(p) [Pa] of a liquid (B_0) carrying free gas that follows p V_G^κ = const, at absolute ``p`` [Pa].
+
+        B(p) = B_0 [1 + (1/α_V0)(p_0/p)^(1/κ)] / [1 + (1/α_V0)(B_0/(κ p_0))(p_0/p)^((κ+1)/κ)]
+
+    It is B = -V dp/dV of V = V_L + V_G with dV_L/dp = -V_L/B_0, V_G = V_G0 (p_0/p)^(1/κ), the liquid volume held
+    at its value V_L at p_0 and α_V0 = V_L / V_G0 the liquid-gas ratio at atmospheric pressure ``p_atm`` = p_0.
+    B -> B_0 as p -> ∞, B(p_0) < B_0 (as B_0 > κ p_0) and B ~ κ p as p -> 0. Below :data:`TWO_STATE_P_FLOOR` B
+    is continued linearly to 0 at p = 0 (and is negative below: a pressure state cannot cross 0).
+    """
+    p = np.asarray(p, dtype=float)
+    q = np.maximum(p, TWO_STATE_P_FLOOR)
+    r = p_atm / q
+    b = b0 * (1.0 + r ** (1.0 / kappa) / alpha_v0) / (1.0 + (b0 / (kappa * p_atm)) * r ** ((kappa + 1.0) / kappa)
+                                                        / alpha_v0)
+    return np.where(p >= TWO_STATE_P_FLOOR, b, b * p / TWO_STATE_P_FLOOR)
+
+
+def gas_fraction(p, alpha_v0: float, kappa: float, p_atm: float = 101325.0):
+    """Gas-to-liquid volume ratio V_G / V_L at absolute pressure ``p`` [Pa]: (1/α_V0) (p_0/p)^(1/κ)."""
+    return (p_atm / np.asarray(p, dtype=float)) ** (1.0 / kappa) / alpha_v0
+
+
+def alpha_for_gas_fraction(fraction: float, p: float, kappa: float, p_atm: float = 101325.0) -> float:
+    """α_V0 = V_L / V_G at p_0 that gives the gas-to-liquid volume ratio ``fraction`` at pressure ``p`` [Pa]."""
+    return (p_atm / p) ** (1.0 / kappa) / fraction
+
+
+def line_flow(dp: float, conductance: float, turbulent: float) -> float:
+    """Flow [m^3/s] through the accumulator's restriction at the pressure drop ``dp`` [Pa] >= 0: the root of
+    dp = q / G + R_T q^2 (laminar conductance G [m^3/(s Pa)], turbulent coefficient R_T [kg/m^7]); 0 for G = 0."""
+    if conductance <= 0.0 or dp <= 0.0:
+        return 0.0
+    r_l = 1.0 / conductance
+    return 2.0 * dp / (r_l + math.sqrt(r_l * r_l + 4.0 * turbulent * dp))
 
 
 # ----------------------------------------------------------------------------- the composed model
@@ -192,11 +294,61 @@ class _Model:
         self.n_states = n
         self.omega = {name: 2.0 * math.pi * p[key] for name, p in self.fx.items()
                       for key in ("bandwidth_Hz", "natural_frequency_Hz") if key in p}
+        mount = self.fx.get("series_compliance")
+        self.compliance = self.area / mount["stiffness_N_per_m"] if mount else 0.0  # [m/Pa]
 
     # --- algebraic pieces
     def bulk(self, p: float) -> float:
         """B(p) of eq. (3) with p_0 -> p_R [Pa]."""
         return self.b0 * (1.0 + self.alpha_v) / (self.alpha_v + self.b0 * self.p_r / (p * p))
+
+    def two_state_bulk(self, p: float) -> float:
+        """B(p) of eq. (2) of the two-state base [Pa] (:func:`polytropic_bulk_modulus`, scalar)."""
+        c = self.fx["two_state_damper"]
+        p_atm, kappa, alpha = c["atmospheric_pressure_Pa"], c["polytropic_exponent"], c["liquid_gas_ratio_atm"]
+        if p < TWO_STATE_P_FLOOR:
+            return self.two_state_bulk(TWO_STATE_P_FLOOR) * p / TWO_STATE_P_FLOOR
+        r = p_atm / p
+        return self.b0 * (1.0 + r ** (1.0 / kappa) / alpha) / (
+            1.0 + (self.b0 / (kappa * p_atm)) * r ** ((kappa + 1.0) / kappa) / alpha)
+
+    def refill_flows(self, p_acc: float, p1: float, p2: float) -> tuple[float, float]:
+        """Flows [m^3/s] from the accumulator into CH1 and CH2: through the restriction and a check valve that only
+        opens towards a chamber below p_acc, plus the two-way bleed G_b (p_acc - p_i)."""
+        c = self.fx["two_state_damper"]
+        g, r_t, g_b = (c["line_conductance_m3_per_s_Pa"], c["line_turbulent_kg_per_m7"],
+                       c["bleed_conductance_m3_per_s_Pa"])
+        return (line_flow(p_acc - p1, g, r_t) + g_b * (p_acc - p1), line_flow(p_acc - p2, g, r_t) + g_b * (p_acc - p2))
+
+    def accumulator_rate(self, x, refill: float) -> float:
+        """dp_acc/dt [Pa/s] of the accumulator's gas, p_acc V_a^κ = p_c V_a0^κ, delivering ``refill`` [m^3/s]:
+        dp_acc/dt = -κ p_acc Q_out / V_a(p_acc), V_a(p) = V_a0 (p_c/p)^(1/κ)."""
+        c = self.fx["two_state_damper"]
+        p_acc = float(x[self.index["two_state_damper"] + 1])
+        kappa = c["polytropic_exponent"]
+        gas = c["accumulator_volume_m3"] * (c["charge_pressure_Pa"] / max(p_acc, TWO_STATE_P_FLOOR)) ** (1.0 / kappa)
+        return -kappa * p_acc * refill / gas
+
+    def chambers(self, x, dp: float, q: float, vol1: float, vol2: float) -> tuple[float, float, float, float, float]:
+        """The chamber equations in the form dp_1/dt = a_1 (A v_P + e_1), dp_2/dt = a_2 (-A v_P + e_2) of the
+        active base (eq. (7) with eq. (6), the ``accumulator``, or the two-state base), and the accumulator's
+        outflow [m^3/s] (two-state base; 0 otherwise). ``q``: the path flow CH1 -> CH2 [m^3/s]."""
+        fx, idx = self.fx, self.index
+        if "two_state_damper" in fx:
+            i = idx["two_state_damper"]
+            p1, p2 = float(x[i]) + 0.5 * dp, float(x[i]) - 0.5 * dp
+            r1, r2 = self.refill_flows(float(x[i + 1]), p1, p2)
+            return (self.two_state_bulk(p1) / vol1, self.two_state_bulk(p2) / vol2, -q + r1, q + r2, r1 + r2)
+        if "accumulator" in fx:
+            p_a, g = fx["accumulator"]["charge_pressure_Pa"], fx["accumulator"]["conductance_m3_per_s_Pa"]
+            p1, p2 = float(x[idx["accumulator"]]) + 0.5 * dp, float(x[idx["accumulator"]]) - 0.5 * dp
+            return (self.bulk(max(p1, ACCUMULATOR_P_FLOOR)) / vol1, self.bulk(max(p2, ACCUMULATOR_P_FLOOR)) / vol2,
+                    -q + g * max(p_a - p1, 0.0), q + g * max(p_a - p2, 0.0), 0.0)
+        if dp >= 0.0:
+            b1, b2 = self.bulk(self.p_r + dp), self.b_ref
+        else:
+            b1, b2 = self.b_ref, self.bulk(self.p_r - dp)
+        return b1 / vol1, b2 / vol2, -q, q, 0.0
 
     def opening(self, dp: float) -> float:
         """Steady poppet opening s(Δp) = clip((|Δp| - p_c) / p_s, 0, 1)."""
@@ -263,8 +415,25 @@ class _Model:
             q += fx["leakage"]["conductance_m3_per_s_Pa"] * dp
         if "unnamed_dynamics" in fx and fx["unnamed_dynamics"]["placement"] == 1:
             q += fx["unnamed_dynamics"]["gain"] * self.unnamed_output(float(x[idx["unnamed_dynamics"]]), target)
-        q_piston = self.area * v_p
-        if "accumulator" in fx:
+        if "series_compliance" in fx or "two_state_damper" in fx:  # eq. (1), chamber by chamber
+            v_act, c = v_p, self.compliance  # the actuator (measured or the servo's); c = A / k_s [m/Pa], or 0
+            if c:  # the piston behind the mount: y_P = y_act - c Δp, v_P = v_act - c dΔp/dt
+                y_p = y_p - c * dp
+                vol1, vol2 = self.v01 - self.area * y_p, self.v02 + self.area * y_p
+            a1, a2, e1, e2, refill = self.chambers(x, dp, q, vol1, vol2)
+            # dΔp/dt = (a1 + a2) A v_P + a1 e1 - a2 e2 with v_P = v_act - c dΔp/dt, solved for dΔp/dt
+            ddp = ((a1 + a2) * self.area * v_act + a1 * e1 - a2 * e2) / (1.0 + (a1 + a2) * self.area * c)
+            v_p = v_act - c * ddp
+            d1, d2 = a1 * (self.area * v_p + e1), a2 * (-self.area * v_p + e2)
+            dx[0] = d1 - d2
+            for name in BASES:
+                if name in fx:
+                    dx[idx[name]] = 0.5 * (d1 + d2)
+            if "two_state_damper" in fx:
+                dx[idx["two_state_damper"] + 1] = self.accumulator_rate(x, refill)
+            v_p = v_act  # the servo below integrates the actuator
+        elif "accumulator" in fx:
+            q_piston = self.area * v_p
             p_a, g = fx["accumulator"]["charge_pressure_Pa"], fx["accumulator"]["conductance_m3_per_s_Pa"]
             p_mean = float(x[idx["accumulator"]])
             p1, p2 = p_mean + 0.5 * dp, p_mean - 0.5 * dp
@@ -275,6 +444,7 @@ class _Model:
             dx[0] = d1 - d2
             dx[idx["accumulator"]] = 0.5 * (d1 + d2)
         else:
+            q_piston = self.area * v_p
             if dp >= 0.0:
                 b1, b2 = self.bulk(self.p_r + dp), self.b_ref
             else:
@@ -310,6 +480,9 @@ class _Model:
             x[idx["poppet_valve"]] = self.opening(dp0)
         if "accumulator" in fx:
             x[idx["accumulator"]] = fx["accumulator"]["charge_pressure_Pa"] + 0.5 * abs(dp0)  # unloaded at p_a
+        if "two_state_damper" in fx:  # the accumulator and the unloaded chamber at the charge, the loaded above it
+            p_c = fx["two_state_damper"]["charge_pressure_Pa"]
+            x[idx["two_state_damper"]], x[idx["two_state_damper"] + 1] = p_c + 0.5 * abs(dp0), p_c
         if "fluid_inertance" in fx:
             x[idx["fluid_inertance"]] = orifice_flow(dp0, self.flow)  # steady: Δp_O(Q_L) = Δp0
         if "unnamed_dynamics" in fx:
@@ -442,7 +615,8 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
     flow : sequence of 4 floats
         (C_L12, C_Q12, C_L21, C_Q21) of eq. (8).
     alpha_v, p_r : float
-        α_V [-] and p_R [Pa] of eq. (3)/(6) (also used by the accumulator's B(p)).
+        α_V [-] and p_R [Pa] of eq. (3)/(6) (also used by the accumulator's B(p); unused by ``two_state_damper``,
+        whose B(p) is eq. (2) with its own α_V0 and κ).
     effects : mapping, optional
         ``{effect: {param: value}}``, see :data:`EFFECT_PARAMS` and :func:`resolve_effects`.
     dp0 : float, optional
@@ -468,8 +642,9 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
         The force F [N] at ``t_samples``; with ``return_states`` a dict with ``"t"``, ``"force"`` and one
         array per state named as :func:`state_names` (``"dp"`` [Pa], ``"y_p"`` [m], ``"v_p"`` [m/s],
         ``"valve_lift"`` [-], ``"valve_rate"`` [1/s], ``"p_mean"`` [Pa], ``"w"``, ``"w_dot"``, ``"q_l"``
-        [m^3/s]). Samples at or before ``t0`` get the initial state. Without the servo, the force terms use
-        y_A(t) and the right-continuous v_A(t) (``inp.velocity``) at the sample times.
+        [m^3/s], ``"p_acc"`` [Pa]; with ``two_state_damper`` also ``"p_1"``, ``"p_2"`` [Pa]). Samples at or
+        before ``t0`` get the initial state. Without the servo, the force terms use y_A(t) and the right-continuous
+        v_A(t) (``inp.velocity``) at the sample times.
 
     Raises
     ------
@@ -533,4 +708,6 @@ def simulate_effects(inp, t_samples, damper: dict, flow, alpha_v: float, p_r: fl
         return force
     out = {"t": t_samples, "force": force}
     out.update(zip(state_names(model.fx), states, strict=True))
+    if "two_state_damper" in model.fx:
+        out["p_1"], out["p_2"] = out["p_mean"] + 0.5 * out["dp"], out["p_mean"] - 0.5 * out["dp"]
     return out
