@@ -43,6 +43,9 @@ class EffectParam:
         A stiffness whose hook uses ``1 / value`` (a compliance): admissible values are > 0, ``inf`` = off.
     inf_ok : bool
         ``inf`` is admissible (an off value: an infinitely fast servo, an infinite span).
+    physical_limits : bool
+        The bounds are physical limits (a polytropic exponent between isothermal 1 and adiabatic 1.4): an estimate
+        on one is the physics at that limit, not a sign that the form does not fit.
     """
 
     name: str
@@ -56,6 +59,7 @@ class EffectParam:
     off: float = 0.0
     reciprocal: bool = False
     inf_ok: bool = False
+    physical_limits: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lower) and math.isfinite(self.upper) and self.lower < self.upper):

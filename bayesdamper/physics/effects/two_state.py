@@ -46,7 +46,8 @@ EFFECT = Effect(
                 "these pressures instead",
     params=(
         EffectParam("polytropic_exponent", "-", 1.0, 1.4, 1.2, False,
-                    "polytropic exponent κ of the entrained gas (1 isothermal, 1.4 adiabatic air)"),
+                    "polytropic exponent κ of the entrained gas (1 isothermal, 1.4 adiabatic air)",
+                    physical_limits=True),
         EffectParam("refill_conductance_m3_per_s_Pa", "m^3/(s Pa)", 1.0e-15, 1.0e-8, 1.0e-12, True,
                     "conductance G of the check valves from the accumulator into each chamber"),
     ),
