@@ -161,9 +161,18 @@ def test_confusion_on_reference_data(case, tmp_path):
     print("CONFUSION-REF", json.dumps(row, default=str))
     # the calibrated damper of every model the diagnosis ends with, checked by predicting each left-out test
     check = d["prediction_check"]["models"]
-    assert (tmp_path / "out" / "calibration.nc").is_file()
-    assert bool(d["selected"]) == (tmp_path / "out" / "calibration-final.nc").is_file()
-    assert len(check) == (2 if d["selected"] else 1)
+    fitted = [d["drift_model_before"]["fitted"], bool(d["selected"]) and d["drift_model_after"]["fitted"]]
+    if case in TWO_STATE_CASES:
+        # eq. (7) is misspecified on this base: its windows of a test may all fail to converge, leaving too few tests
+        # for the baseline's drift law (seen on the k1.1 control: 0.5 mm/s). Then, as write_calibration documents, no
+        # calibration is written and diagnosis.json says why; the files must match what was fitted.
+        for key in ("before", "after") if d["selected"] else ("before",):
+            assert d[f"drift_model_{key}"]["fitted"] or d[f"drift_model_{key}"]["reason"], key
+    else:
+        assert fitted == [True, bool(d["selected"])], (d["drift_model_before"], d.get("drift_model_after"))
+    assert (tmp_path / "out" / "calibration.nc").is_file() == fitted[0]
+    assert (tmp_path / "out" / "calibration-final.nc").is_file() == fitted[1]
+    assert len(check) == sum(fitted)
     for m in check.values():
         assert {r["test"] for r in m["rows"]} == {w["test"] for w in d["windows"]}
         for r in m["rows"]:  # scored, or it says why not (too few tests left for a law, every solve failed)
