@@ -162,15 +162,9 @@ def test_confusion_on_reference_data(case, tmp_path):
     # the calibrated damper of every model the diagnosis ends with, checked by predicting each left-out test
     check = d["prediction_check"]["models"]
     fitted = [d["drift_model_before"]["fitted"], bool(d["selected"]) and d["drift_model_after"]["fitted"]]
-    if case in TWO_STATE_CASES:
-        # eq. (7) is misspecified on this base: its windows of a test may all fail to converge or pile at a prior
-        # bound, leaving too few tests for the baseline's drift law (seen on the k1.1 control: 6 of 9 windows usable,
-        # from 2 tests). Then, as write_calibration documents, no calibration is written and diagnosis.json says why;
-        # the files must match what was fitted.
-        for key in ("before", "after") if d["selected"] else ("before",):
-            assert d[f"drift_model_{key}"]["fitted"] or d[f"drift_model_{key}"]["reason"], key
-    else:
-        assert fitted == [True, bool(d["selected"])], (d["drift_model_before"], d.get("drift_model_after"))
+    # every model the diagnosis ends with gets its drift law (windows that did not converge join the law's data
+    # when the converged ones come from too few tests)
+    assert fitted == [True, bool(d["selected"])], (d["drift_model_before"], d.get("drift_model_after"))
     assert (tmp_path / "out" / "calibration.nc").is_file() == fitted[0]
     assert (tmp_path / "out" / "calibration-final.nc").is_file() == fitted[1]
     assert len(check) == sum(fitted)

@@ -248,3 +248,24 @@ def test_a_covariate_of_the_records_enters_the_law():
     same = [WindowDraws(w.id, w.speed, w.draws, w.test, 40.0) for w in wins]
     short = SamplerSettings(n_ensembles=2, n_walkers=14, max_steps=100, check_every=100)  # only the law's terms
     assert fit_hierarchy(same, seed=0, covariate_name="temperature_C", sampler=short).covariate is None
+
+
+def test_the_law_takes_every_window_when_the_converged_ones_come_from_too_few_tests():
+    from types import SimpleNamespace
+
+    from bayesdamper.inference.calibration import calibration_windows
+
+    def result(test, v, converged):
+        chains = np.ones((2, 3, 2)) * np.array([40.0, 3e5])
+        return SimpleNamespace(entry={"id": f"{test}-{converged}", "test": test, "velocity_m_s": v,
+                                      "converged": converged}, names=("alpha_V", "p_R_Pa"), chains=chains)
+
+    # six converged windows from two tests, the third test's windows did not converge: too few tests for a line
+    res = [result(t, v, c) for t, v, c in [("a", 0.5e-3, False), ("a", 0.5e-3, False)]
+           + [(t, v, True) for t, v in [("b", 1e-3), ("c", 1.5e-3)] for _ in range(3)]]
+    use, wins = calibration_windows(res, degree=1)
+    assert len(use) == len(res) and {w.test for w in wins} == {"a", "b", "c"}
+    # with a third converged test the non-converged windows stay out
+    res += [result("d", 2e-3, True)]
+    use, _ = calibration_windows(res, degree=1)
+    assert all(r.entry["converged"] for r in use) and len(use) == 7

@@ -216,10 +216,12 @@ def ar1_of(residuals: list[np.ndarray]) -> tuple[float, float]:
 def calibration_windows(results: list, degree: int = 1, covariates: dict | None = None
                         ) -> tuple[list, list[WindowDraws]]:
     """The results the law is fitted to and their draws: the converged windows whose posterior is not piled against
-    a prior bound (a mean set by the prior box, not by the test), or all where fewer than ``degree + 2`` qualify;
-    ``covariates`` maps a test to its covariate value (its mean temperature, say)."""
+    a prior bound (a mean set by the prior box, not by the test), or all where they come from fewer than
+    ``degree + 2`` tests or ``degree + 1`` speeds (what the law needs); ``covariates`` maps a test to its covariate
+    value (its mean temperature, say)."""
     good = [r for r in results if r.entry["converged"] and not (r.entry.get("shape") or {}).get("at_prior_bound")]
-    use = good if len(good) >= degree + 2 and len({r.entry["velocity_m_s"] for r in good}) > degree else results
+    tests = {str(r.entry.get("test") or r.entry["id"]) for r in good}
+    use = good if len(tests) >= degree + 2 and len({r.entry["velocity_m_s"] for r in good}) > degree else results
     wins = []
     for r in use:
         idx = [list(r.names).index(n) for n in NAMES]
