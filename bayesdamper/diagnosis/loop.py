@@ -11,7 +11,9 @@ with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed ``LOVO_SE`` = 2 standard err
 (:mod:`bayesdamper.diagnosis.attribution`), a fold whose gain is an outlier among the folds' (the Hampel
 identifier: the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside
 and reported; among the options that pass, the largest gain wins. Options
-are single candidates and pairs of the best ones; every option re-fits the effects already selected jointly
+are single candidates, pairs of the best ones and, in the first round, pairs of the two-state model with the
+candidates that best explain what it leaves (:func:`two_state_pairs`); every option re-fits the effects already
+selected jointly
 with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
 jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
 Otherwise the answer is "none". The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every
@@ -259,6 +261,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st[b.effect] = b.effects[specs[b.effect].effect]
                 fits.append(fit_joint(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {}, current["sse"],
                                       n_eff, flow_for, effect_argument, new=(a.effect, b.effect)))
+        if not sel_specs:
+            fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
         fits.sort(key=lambda c: c.delta_bic)
         rows = [_option_row(c, j_cur) for c in fits]
         check_pairs(rows)
@@ -331,6 +335,39 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if rounds:
             rounds[-1]["backward_check"] = dropped
     return selected, fixed, rounds
+
+
+def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_sse, n_eff, flow_for, progress) -> list:
+    """Pairs of the two-state model with the candidates that best explain what it leaves.
+
+    A rig effect seen through eq. (6)'s assumed pressures can be masked by them (a compliant mount on a two-state
+    damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
+    missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
+    candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
+    ΔBIC_eff are fitted jointly with it, every parameter free. Returns those joint fits (options like any pair)."""
+    ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
+    if ts is None:
+        return []
+    held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
+    screened = []
+    for label in remaining:
+        if specs[label].effect == TWO_STATE:
+            continue
+        progress(f"diagnose: round 1, screening {label} on the two-state model")
+        screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
+                                  grid_only=True))
+        progress.advance()
+    have = {frozenset(c.labels) for c in fits if len(c.labels) == 2}
+    out = []
+    for c in sorted(screened, key=lambda c: c.delta_bic)[:PAIR_FROM]:
+        pair = (ts.labels[0], c.labels[0])
+        if frozenset(pair) in have:
+            continue
+        progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
+        st = {pair[0]: ts.effects[TWO_STATE], pair[1]: c.effects[specs[pair[1]].effect]}
+        out.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]], st, {}, current_sse, n_eff, flow_for,
+                             effect_argument, new=pair))
+    return out
 
 
 def _generic(label: str, specs: dict) -> bool:
