@@ -88,7 +88,7 @@ def report_text(d: dict) -> str:
                                else x["effect"] for x in lr["rivals"]) or "none fitted"
             lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gain over "
                          f"each, named only above {lr['margin_se']:g} se): {rivals}: "
-                         + ("named." if lr["kept"] else "not named")
+                         + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
     for r in (d.get("rounds") or [])[-1:]:
@@ -121,6 +121,9 @@ def report_text(d: dict) -> str:
                 lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
                              f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
                              "the library's effects reproduces it.")
+    from bayesdamper.diagnosis.summary import findings_text
+
+    lines += [f"Finding: {x}" for x in findings_text(d)]
     kinds = s.get("parameters_by_kind_median", {})
     if len(kinds) == 2:
         ini, rev = kinds["initial"], kinds["reversal"]

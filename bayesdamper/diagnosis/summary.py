@@ -1,5 +1,10 @@
 """What a diagnosis reports: J before and after (per window, per speed, pooled), drift, the p_R split, the structure
 before and after, and the settings and provenance — the content of ``diagnosis.json``.
+
+Findings the report must state: a selected effect's parameter that ends on a bound of its search (the form does not
+fit the data as parametrised: its value is not a result; :func:`bound_findings`), and every test speed (or kind of
+step at a speed) whose J is worse with the selected effects than without (:func:`j_by_speed`). :func:`findings_text`
+words both for the report.
 """
 
 from __future__ import annotations
@@ -15,13 +20,14 @@ from bayesdamper.diagnosis.calibrated import (
     SEARCH_CYCLES,
     SEARCH_MIN_S,
 )
-from bayesdamper.diagnosis.candidates import pooled_j
+from bayesdamper.diagnosis.candidates import CandidateSpec, pooled_j, reset_search_cost, search_cost, spec_bound_flags
 from bayesdamper.diagnosis.loop import SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
 from bayesdamper.diagnosis.residual import summarise_structure as _summarise_structure
 from bayesdamper.inference.drift import drift_summary
 
-__all__ = ["GENERIC", "p_r_split", "pooled_j_ls", "summarise_diagnosis"]
+__all__ = ["GENERIC", "annotate_bounds", "bound_findings", "findings_text", "j_by_speed", "p_r_split", "pooled_j_ls",
+           "summarise_diagnosis", "test_speeds"]
 
 #: The generic effect: a candidate only with the structure the residual's signature found.
 GENERIC = "unnamed_dynamics"
@@ -54,12 +60,119 @@ def p_r_split(entries: list[dict]) -> dict:
             "median_half_width_log": half, "agrees": bool(gap < half)}
 
 
+def test_speeds(windows) -> list[float]:
+    """Each window's test speed [m/s]: the median |v| of the windows of its record (``window.test``)."""
+    by_test: dict = {}
+    for w in windows:
+        by_test.setdefault(w.test, []).append(abs(float(w.velocity)))
+    return [float(np.median(by_test[w.test])) for w in windows]
+
+
+def j_by_speed(windows, base_resid: list[np.ndarray], final_resid: list[np.ndarray]) -> list[dict]:
+    """Pooled eq. (9) J of the baseline and of the final model per test speed and kind of step.
+
+    One row per (speed, kind) present and one with kind ``"all"`` per speed, each ``{"speed_mm_s", "kind",
+    "n_windows", "J_before", "J_after", "change", "worse"}``: J pooled over the windows of that speed (and kind)
+    from the residuals, ``change`` J_after / J_before - 1, ``worse`` whether J_after exceeds J_before.
+    """
+    speeds = [round(v * 1e3, 4) for v in test_speeds(windows)]
+    forces = [w.force for w in windows]
+    rows = []
+    for sp in sorted(set(speeds)):
+        at = [i for i, v in enumerate(speeds) if v == sp]
+        kinds = sorted({windows[i].kind for i in at})
+        for kind in kinds + ["all"]:
+            idx = [i for i in at if kind == "all" or windows[i].kind == kind]
+            jb = pooled_j([base_resid[i] for i in idx], [forces[i] for i in idx])
+            ja = pooled_j([final_resid[i] for i in idx], [forces[i] for i in idx])
+            rows.append({"speed_mm_s": float(sp), "kind": kind, "n_windows": len(idx), "J_before": jb, "J_after": ja,
+                         "change": ja / jb - 1.0 if jb > 0 else float("nan"), "worse": bool(ja > jb)})
+    return rows
+
+
+def _specs_by_label(names: list) -> dict:
+    return {getattr(n, "label", n): (n if isinstance(n, CandidateSpec) else CandidateSpec(n)) for n in names}
+
+
+#: The sentence of a parameter on its bound (:func:`bound_findings`).
+BOUND_TEXT = ("{effect}: {param} ends on its {side} bound ({value:.4g}): the form does not fit these data as "
+              "parametrised; its value is not a result")
+
+
+def bound_findings(selected: list[str], fixed: dict, names: list) -> list[dict]:
+    """The selected effects' parameters that end on a bound of their search
+    (:func:`bayesdamper.diagnosis.candidates.spec_bound_flags` of the final values ``fixed``), each
+    ``{"effect", "param", "value", "bound", "side", "text"}`` (:data:`BOUND_TEXT`)."""
+    specs = _specs_by_label(names)
+    out = []
+    for label in selected:
+        spec = specs.get(label) or CandidateSpec(label)
+        for f in spec_bound_flags(spec, fixed.get(spec.effect) or {}):
+            out.append({"effect": label, **f, "text": BOUND_TEXT.format(effect=label, **f)})
+    return out
+
+
+def annotate_bounds(rounds: list, names: list) -> None:
+    """Add ``at_bound`` (:func:`bayesdamper.diagnosis.candidates.bound_flags`) to every candidate row of ``rounds``
+    from its parameters' estimates (keys ``param`` of a single fit, ``label.param`` of a joint one)."""
+    specs = _specs_by_label(names)
+    for rnd in rounds:
+        for row in rnd.get("candidates") or []:
+            flags = []
+            for key, est in (row.get("params") or {}).items():
+                label, name = key.rsplit(".", 1) if "." in key else (row.get("effect", ""), key)
+                spec = specs.get(label)
+                value = (est or {}).get("median") if isinstance(est, dict) else None
+                if spec is None or value is None:
+                    continue
+                flags += [{**f, "param": key} for f in spec_bound_flags(spec, {name: value})]
+            row["at_bound"] = flags
+
+
+def findings_text(diagnosis: dict) -> list[str]:
+    """The findings as report lines: each selected effect's parameter on its bound (:func:`bound_findings`), and
+    which test speeds (and kinds of step) got worse after the selected effects were added, or that none did
+    (:func:`j_by_speed`). Nothing on speeds when no effect was selected."""
+    lines = [f["text"] + "." for f in diagnosis.get("findings") or []]
+    rows = diagnosis.get("J_by_speed") or []
+    if not diagnosis.get("selected") or not rows:
+        return lines
+    added = ", ".join(diagnosis["selected"])
+
+    def fmt(r, kind=False):
+        return (f"{r['speed_mm_s']:.2f} mm/s" + (f" ({r['kind']})" if kind else "")
+                + f" ({r['J_before']:.4f} -> {r['J_after']:.4f})")
+
+    worse = [r for r in rows if r["kind"] == "all" and r["worse"]]
+    worse_speeds = {r["speed_mm_s"] for r in worse}
+    by_kind = [r for r in rows if r["kind"] != "all" and r["worse"] and r["speed_mm_s"] not in worse_speeds]
+    if worse:
+        lines.append(f"J got worse after adding {added} at {len(worse)} of "
+                     f"{sum(r['kind'] == 'all' for r in rows)} test speeds: " + ", ".join(fmt(r) for r in worse) + ".")
+    else:
+        lines.append(f"No test speed got worse after adding {added} (J per speed before -> after: "
+                     + ", ".join(fmt(r) for r in rows if r["kind"] == "all") + ").")
+    if by_kind:
+        lines.append("By kind of step, also worse: " + ", ".join(fmt(r, True) for r in by_kind) + ".")
+    return lines
+
+
+def _take_search_cost() -> dict:
+    """The profile searches' cost per stage so far (:func:`bayesdamper.diagnosis.candidates.search_cost`), the tally
+    then started afresh for the next diagnosis of the process."""
+    out = search_cost()
+    reset_search_cost()
+    return out
+
+
 def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise, noises, rows, structure,
                         signature, rounds, selected, fixed, names, settings, final_settings, credible_mass: float,
                         seed: int, prov: dict) -> dict:
     """The diagnosis as plain values (``diagnosis.json``): everything :func:`bayesdamper.run.diagnose.run_diagnosis`
-    computed, with J before and after per window and per speed, drift before and after and the structure of the
-    residual after."""
+    computed, with J before and after per window and per speed (and kind of step, :func:`j_by_speed`), drift before
+    and after, the structure of the residual after, the selected effects' parameters on a bound (``findings``,
+    :func:`bound_findings`; every candidate row of ``rounds`` gets its ``at_bound``) and the searches' cost per stage.
+    """
     forces = [w.force for w in windows]
     base_entries = [r.entry for r in base]
     final_entries = [r.entry for r in final]
@@ -68,6 +181,7 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
         rate = 1.0 / float(np.median(np.diff(w.time)))
         after_rows.append(structure_test(r, rate, nz) | describe_residual(w.time - w.t_step, r, w.force, rate)
                           | {"id": w.id, "velocity_m_s": w.velocity, "direction": w.direction, "kind": w.kind})
+    annotate_bounds(rounds, names)
     per_velocity = {}
     for v in sorted({round(w.velocity, 6) for w in windows}):
         idx = [i for i, w in enumerate(windows) if round(w.velocity, 6) == v]
@@ -87,6 +201,8 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
         "final": {"J_pooled": pooled_j(final_resid, forces), "J_pooled_ls": pooled_j_ls(final_entries, forces),
                   "J": {e["id"]: e["J"] for e in final_entries}},
         "J_pooled_by_velocity_mm_s": per_velocity,
+        "J_by_speed": j_by_speed(windows, base_resid, final_resid),
+        "findings": bound_findings(selected, fixed, names),
         "p_R_split": {"before": p_r_split(base_entries), "after": p_r_split(final_entries)},
         "drift_before": drift_summary(base_entries, credible_mass, seed) if len(base_entries) >= 3 else {},
         "drift_after": drift_summary(final_entries, credible_mass, seed) if len(final_entries) >= 3 else {},
@@ -102,7 +218,11 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
                                     f"the first {SCREEN_CYCLES:g} cycle(s) (at least {SCREEN_MIN_S:g} s) with the "
                                     "flow coefficients held at the baseline's",
                    "candidates_J": "the candidates' J are over the search's samples; J before and after are over "
-                                   "every sample"},
+                                   "every sample",
+                   "cost_by_stage": _take_search_cost(),
+                   "cost_note": "seconds and evaluations (re-fits of every window of a stage's objective) of the "
+                                "profile searches per stage since the process's previous diagnosis was summarised "
+                                "(a diagnose command: this run)"},
         "final_segments": final_entries,
         "settings": settings.as_dict(), "final_settings": final_settings.as_dict(), "seed": seed,
         "effects_considered": [getattr(n, "label", n) for n in names],

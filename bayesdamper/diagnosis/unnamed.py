@@ -24,7 +24,8 @@ import math
 from bayesdamper.diagnosis.candidates import CandidateSpec, SearchParam
 from bayesdamper.physics.effects import unnamed_dynamics as _ud
 
-__all__ = ["effect_reading", "library_candidates", "signature_starts", "unnamed_candidates"]
+__all__ = ["effect_reading", "library_candidates", "signature_poles", "signature_starts", "signature_thresholds",
+           "unnamed_candidates"]
 
 #: The signature's drivers the generic effect can take (time since the step is no model signal).
 _DRIVER_CODE = {"dp": 0, "q": 1, "y": 2}
@@ -72,22 +73,56 @@ def signature_starts(signature: dict) -> dict[str, list[float]]:
     return {k: v for k, v in out.items() if v}
 
 
+def signature_poles(signature: dict) -> list[tuple[float, float]]:
+    """Part 1's poles as (f [Hz], ζ) pairs: each oscillatory pair, and the overdamped pair of the real poles
+    (:func:`_second_order` of the real poles alone). Empty when part 1 identified nothing."""
+    fit = signature.get("fit") or {}
+    if signature.get("verdict") in (None, "none", "not identified"):
+        return []
+    poles = list(fit.get("poles") or [])
+    out = [(float(p["frequency_hz"]), float(p["damping"])) for p in poles
+           if p.get("kind") != "real" and p.get("frequency_hz") and p.get("damping")]
+    real = _second_order([p for p in poles if p.get("kind") == "real"])
+    if real is not None:
+        out.append(real)
+    return out
+
+
+def signature_thresholds(signature: dict) -> list[float]:
+    """The Δp [Pa] at which part 1 found the residual to set in: its dead zone's threshold when the residual is
+    driven by Δp through a dead zone (the residual's onset in |Δp|), else nothing."""
+    fit = signature.get("fit") or {}
+    if signature.get("verdict") in (None, "none", "not identified") or fit.get("driver") != "dp" \
+            or fit.get("law") != "deadzone" or not fit.get("threshold"):
+        return []
+    return [abs(float(fit["threshold"]))]
+
+
 def library_candidates(names: list[str], signature: dict) -> list[CandidateSpec]:
     """The library's effects as candidates, their frequency, damping-ratio and time-constant parameters
     started also at part 1's values (:func:`signature_starts`): a coarse grid alone misses the narrow
-    optimum of a lightly damped valve."""
+    optimum of a lightly damped valve. An effect with narrow-basin parameters
+    (:func:`bayesdamper.diagnosis.candidates.narrow_kind`) also takes part 1's pole pairs (:func:`signature_poles`)
+    and the residual's onset in Δp (:func:`signature_thresholds`) for the search's global stage."""
+    from bayesdamper.diagnosis.candidates import narrow_kind
     from bayesdamper.physics.effects import EFFECTS
 
     found = signature_starts(signature)
+    poles, onsets = tuple(signature_poles(signature)), tuple(signature_thresholds(signature))
     out = []
     for name in names:
         starts = {}
+        kinds = set()
         for prm in EFFECTS[name].params:
             kind = "Hz" if prm.unit == "Hz" else "damping" if "damping_ratio" in prm.name else \
                 "s" if prm.unit == "s" else None
             if kind in found and not prm.optional:
                 starts[prm.name] = tuple(found[kind])
-        out.append(CandidateSpec(name, starts=starts))
+            if not prm.optional:
+                kinds.add(narrow_kind(name, prm.name))
+        out.append(CandidateSpec(name, starts=starts,
+                                 poles=poles if kinds & {"frequency", "damping"} else (),
+                                 thresholds=onsets if "threshold" in kinds else ()))
     return out
 
 

@@ -1,0 +1,248 @@
+"""The profile search's global stage, its bound findings and the per-speed J before and after (fast, seeded).
+
+The global stage (:func:`bayesdamper.diagnosis.candidates.global_starts`) starts narrow-basin parameters from the
+signature's poles and from the data; a parameter that ends on a bound of its search is a finding, not a result; and
+every test speed whose J got worse after the effects were added is said (:mod:`bayesdamper.diagnosis.summary`).
+"""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from profile_fakes import FakeProfileEngine, fake_problem
+
+import bayesdamper.diagnosis.candidates as cand
+from bayesdamper.diagnosis.candidates import (
+    CandidateSpec,
+    SearchParam,
+    bound_flags,
+    fit_joint,
+    global_starts,
+    narrow_kind,
+    search_params,
+    spec_bound_flags,
+    spectral_peaks,
+)
+from bayesdamper.diagnosis.summary import annotate_bounds, bound_findings, findings_text, j_by_speed
+
+# ----------------------------------------------------------------------------------------------- narrow parameters
+
+
+def test_narrow_kinds_from_names_and_units():
+    assert narrow_kind("poppet_valve", "natural_frequency_Hz") == "frequency"
+    assert narrow_kind("poppet_valve", "damping_ratio") == "damping"
+    assert narrow_kind("poppet_valve", "cracking_pressure_Pa") == "threshold"
+    assert narrow_kind("poppet_valve", "span_Pa") == "span"
+    assert narrow_kind("valve_dynamics", "opening_pressure_Pa") == "threshold"
+    assert narrow_kind("command_displacement", "bandwidth_Hz") == "frequency"
+    assert narrow_kind("valve_dynamics", "time_constant_s") is None
+    assert narrow_kind("accumulator", "charge_pressure_Pa") is None  # a pressure, but no threshold
+    assert narrow_kind("friction", "coulomb_N") is None
+
+
+# --------------------------------------------------------------------------------------------------- bound flags
+
+
+def test_bound_flags_in_search_coordinates():
+    """Log parameters are judged on the log of their range: within 1 % of it from a bound is on the bound."""
+    poppet = CandidateSpec("poppet_valve")
+    flags = spec_bound_flags(poppet, {"natural_frequency_Hz": 3.31, "damping_ratio": 3.0,
+                                      "cracking_pressure_Pa": 1.05e3, "span_Pa": 1.0e8})
+    assert [(f["param"], f["side"]) for f in flags] == [("damping_ratio", "upper"), ("cracking_pressure_Pa", "lower"),
+                                                         ("span_Pa", "upper")]
+    assert flags[0]["value"] == pytest.approx(3.0) and flags[0]["bound"] == pytest.approx(3.0)
+    assert flags[1]["bound"] == pytest.approx(1.0e3)
+    # 1.1 kPa is 1.2 % of the log range above 1 kPa: inside; a damping ratio of 2.8 (1.4 % below 3) too, 2.9 not
+    assert spec_bound_flags(poppet, {"natural_frequency_Hz": 3.31, "damping_ratio": 2.8,
+                                     "cracking_pressure_Pa": 1.1e3, "span_Pa": 3.0e7}) == []
+    # a linear signed parameter, and a negative one searched on the log of its magnitude: the side is physical
+    lin = SearchParam("gain", -2.0, 2.0, False)
+    neg = SearchParam("gain", -1e-3, -1e-6, True, -1.0)
+    z = np.array([1.97, math.log(0.99e-3)])
+    lo = np.array([-2.0, math.log(1e-6)])
+    hi = np.array([2.0, math.log(1e-3)])
+    out = bound_flags([("a", lin), ("b", neg)], z, lo, hi)
+    assert [(f["param"], f["side"]) for f in out] == [("a", "upper"), ("b", "lower")]
+    assert out[1]["bound"] == pytest.approx(-1e-3)
+
+
+def test_bound_flag_on_a_constructed_fit():
+    """A fit whose optimum lies beyond the search box ends on the bound, and says so (``at_bound``)."""
+
+    class Engine(FakeProfileEngine):
+        problems = [fake_problem(np.ones(40))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            tau = eff["actuator_lag"]["time_constant_s"]  # SSE falls towards a time constant beyond the 0.5 s bound
+            sse = 40.0 * (0.2 + 0.8 / (1.0 + tau))
+            return np.array([sse]), np.zeros((1, 2)), [np.full(40, math.sqrt(sse / 40.0))]
+
+    fit = fit_joint(Engine(), [CandidateSpec("actuator_lag")], {}, {}, np.array([40.0]), np.array([40.0]),
+                    lambda e: None, lambda e: e)
+    assert fit.at_bound == [{"param": "time_constant_s", "value": pytest.approx(0.5), "bound": pytest.approx(0.5),
+                             "side": "upper"}]
+    assert set(fit.cost) >= {"grid", "refine", "intervals"}
+
+
+def test_findings_of_the_selected_effects_and_the_candidate_rows():
+    names = [CandidateSpec("poppet_valve"), "friction",
+             CandidateSpec("unnamed_dynamics@flow:transient", {"gain": SearchParam("gain", -0.8, 0.8, False)})]
+    fixed = {"poppet_valve": {"natural_frequency_Hz": 3.31, "damping_ratio": 3.0, "cracking_pressure_Pa": 3.5e4,
+                              "span_Pa": 1.0e8},
+             "unnamed_dynamics": {"gain": 0.79, "natural_frequency_Hz": 1.86, "damping_ratio": 0.44, "driver": 1.0}}
+    found = bound_findings(["poppet_valve", "unnamed_dynamics@flow:transient"], fixed, names)
+    assert [(f["effect"], f["param"]) for f in found] == [
+        ("poppet_valve", "damping_ratio"), ("poppet_valve", "span_Pa"), ("unnamed_dynamics@flow:transient", "gain")]
+    assert found[0]["text"] == ("poppet_valve: damping_ratio ends on its upper bound (3): the form does not fit these "
+                                "data as parametrised; its value is not a result")
+    assert found[2]["text"].startswith("unnamed_dynamics@flow:transient: gain ends on its upper bound (0.79)")
+    lines = findings_text({"findings": found, "selected": [], "J_by_speed": []})
+    assert lines == [f["text"] + "." for f in found]
+    # the candidate rows: single fits keyed by the parameter, joint fits by label.parameter
+    rounds = [{"candidates": [
+        {"effect": "poppet_valve", "params": {k: {"median": v} for k, v in fixed["poppet_valve"].items()}},
+        {"effect": "friction", "params": {"coulomb_N": {"median": 120.0}}},
+        {"effect": "unnamed_dynamics@flow:transient", "params": {
+            "poppet_valve.damping_ratio": {"median": 0.5}, "poppet_valve.span_Pa": {"median": 1.0e5},
+            "unnamed_dynamics@flow:transient.gain": {"median": -0.2}}}]}]
+    annotate_bounds(rounds, names)
+    rows = rounds[0]["candidates"]
+    assert [f["param"] for f in rows[0]["at_bound"]] == ["damping_ratio", "span_Pa"]
+    assert rows[1]["at_bound"] == []
+    assert [(f["param"], f["side"]) for f in rows[2]["at_bound"]] == [("poppet_valve.span_Pa", "lower")]
+
+
+# ------------------------------------------------------------------------------------------ J per speed and kind
+
+
+def _window(test, v, kind, n=200, seed=0):
+    rng = np.random.default_rng(seed)
+    return SimpleNamespace(test=test, velocity=v, kind=kind, force=1000.0 + rng.normal(0.0, 50.0, n))
+
+
+def test_j_per_speed_and_kind_and_which_got_worse():
+    """Three tests (0.5, 1.0, 1.5 mm/s), a start from rest and a reversal each; residuals built so that 0.5 mm/s
+    gets worse, 1.0 mm/s better, and at 1.5 mm/s only the reversal is worse (the speed as a whole better)."""
+    wins, before, after = [], [], []
+    scale = {(0.5, "initial"): (0.02, 0.03), (0.5, "reversal"): (0.02, 0.025), (1.0, "initial"): (0.04, 0.01),
+             (1.0, "reversal"): (0.04, 0.02), (1.5, "initial"): (0.08, 0.01), (1.5, "reversal"): (0.01, 0.012)}
+    for k, ((v, kind), (jb, ja)) in enumerate(scale.items()):
+        w = _window(f"tri_{v}", (-1) ** k * v * 1e-3 * (1.0 + 0.01 * k), kind, seed=k)
+        shape = np.sin(np.linspace(0.0, 9.0, w.force.size))
+        unit = shape * np.linalg.norm(w.force) / np.linalg.norm(shape)
+        wins.append(w)
+        before.append(jb * unit)
+        after.append(ja * unit)
+    rows = j_by_speed(wins, before, after)
+    by = {(r["speed_mm_s"], r["kind"]): r for r in rows}
+    assert len(rows) == 9 and all(r["n_windows"] == (2 if r["kind"] == "all" else 1) for r in rows)
+    # the test speed is the median |v| of the record's windows (1 % apart here), not each window's own
+    assert sorted({r["speed_mm_s"] for r in rows}) == pytest.approx([0.5025, 1.025, 1.5675])
+    s05, s10, s15 = sorted({r["speed_mm_s"] for r in rows})
+    assert by[(s05, "initial")]["J_before"] == pytest.approx(0.02) and by[(s05, "initial")]["J_after"] == \
+        pytest.approx(0.03)
+    # pooled over the windows of a speed, weighted by their forces' energy (here nearly equal)
+    f2 = [float(w.force @ w.force) for w in wins[:2]]
+    want = math.sqrt((0.02 ** 2 * f2[0] + 0.02 ** 2 * f2[1]) / sum(f2))
+    assert by[(s05, "all")]["J_before"] == pytest.approx(want)
+    assert [(r["speed_mm_s"], r["kind"]) for r in rows if r["worse"]] == [(s05, "initial"), (s05, "reversal"),
+                                                                          (s05, "all"), (s15, "reversal")]
+    assert by[(s10, "all")]["change"] < 0 and not by[(s15, "all")]["worse"]
+    d = {"selected": ["poppet_valve"], "findings": [], "J_by_speed": rows}
+    lines = findings_text(d)
+    assert lines[0].startswith("J got worse after adding poppet_valve at 1 of 3 test speeds: 0.50 mm/s (")
+    assert lines[1].startswith("By kind of step, also worse: 1.57 mm/s (reversal) (0.0100 -> 0.0120)")
+    # none worse: said so; no effect added: nothing on speeds
+    better = j_by_speed(wins, before, [0.5 * r for r in before])
+    assert not any(r["worse"] for r in better)
+    text = findings_text({"selected": ["poppet_valve"], "J_by_speed": better})
+    assert text[0].startswith("No test speed got worse after adding poppet_valve (J per speed before -> after: ")
+    same = j_by_speed(wins, before, before)
+    assert not any(r["worse"] for r in same)
+    assert findings_text({"selected": [], "J_by_speed": same}) == []
+
+
+# -------------------------------------------------------------------------------------------------- global stage
+
+
+class _WellEngine(FakeProfileEngine):
+    """One window whose profile SSE (of the second-order servo's bandwidth f and damping ζ) has a broad, shallow
+    basin at a grid point (50 Hz, ζ 0.95: SSE 10) and a narrow, deep well at (2 Hz, ζ 0.2: SSE 0.5), between the
+    coarse grid's frequencies (0.5, 5, 50, 500 Hz)."""
+
+    problems = [fake_problem(np.ones(50))]
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None):
+        p = eff["command_displacement"]
+        f, z = p["bandwidth_Hz"], p["damping_ratio"]
+        broad = math.exp(-math.log(f / 50.0) ** 2 - math.log(z / 0.95) ** 2)
+        well = math.exp(-(math.log(f / 2.0) / 0.3) ** 2 - (math.log(z / 0.2) / 0.5) ** 2)
+        sse = 50.0 * (1.0 - 0.8 * broad - 0.99 * well)
+        return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+
+def _servo_fit(poles=()):
+    return fit_joint(_WellEngine(), [CandidateSpec("command_displacement", poles=poles)], {}, {}, np.array([50.0]),
+                     np.array([50.0]), lambda e: None, lambda e: e)
+
+
+def test_global_stage_finds_the_narrow_well_a_single_start_misses(monkeypatch):
+    """Started at the signature's pole (2.2 Hz, ζ 0.25: SSE 13, worse than the broad basin's grid point, SSE 10),
+    the global stage refines both and keeps the well; the grid and one refinement end in the broad basin, and so
+    does the global stage when it may refine one start only."""
+    plain = _servo_fit()
+    assert plain.j_pooled == pytest.approx(math.sqrt(10.0 / 50.0), rel=0.02)  # the broad basin: J 0.447
+    found = _servo_fit(((2.2, 0.25),))
+    assert found.j_pooled < 0.15  # the well: J 0.1 at the bottom
+    v = found.effects["command_displacement"]
+    assert v["bandwidth_Hz"] == pytest.approx(2.0, rel=0.05) and v["damping_ratio"] == pytest.approx(0.2, rel=0.1)
+    assert found.cost["global"]["starts"] == 1 and found.cost["refine"]["starts"] == 2
+    assert found.at_bound == []
+    monkeypatch.setattr(cand, "GLOBAL_REFINE", 1)
+    one = _servo_fit(((2.2, 0.25),))
+    assert one.j_pooled == pytest.approx(math.sqrt(10.0 / 50.0), rel=0.02)
+
+
+def test_global_starts_of_a_valve_from_poles_and_data():
+    """The poppet valve: part 1's pole pairs (clipped to the box), its onset and the quantiles of |Δp| for the
+    cracking pressure (merged within a tenth of the log range), the top of |Δp| times 0.1, 1, 10 for the span; at
+    most 3 values per axis, every other coordinate at the grid's best point."""
+    rng = np.random.default_rng(3)
+    spec = CandidateSpec("poppet_valve", poles=((1.75, 0.14), (1.41, 4.6), (1.8, 0.15)), thresholds=(3.4e5,))
+    ps = search_params(spec)
+    flat = [(spec, p) for p in ps]
+    lo = np.array([math.log(p.lower) for p in ps])
+    hi = np.array([math.log(p.upper) for p in ps])
+    dp = np.abs(rng.normal(0.0, 8e5, 5000))
+    base = 0.5 * (lo + hi)
+    starts, narrow = global_starts(flat, [0, 1, 2, 3], base, lo, hi, dp)
+    assert narrow == [0, 1, 2, 3]
+    z = np.exp(np.array(starts))
+    pairs = sorted({(round(a, 3), round(b, 3)) for a, b in z[:, :2]})
+    assert pairs == [(1.41, 3.0), (1.75, 0.14)]  # (1.8, 0.15) merged into (1.75, 0.14); ζ 4.6 clipped to 3
+    cracks = sorted({round(c) for c in z[:, 2]})
+    q = [float(np.quantile(dp, x)) for x in cand.THRESHOLD_QUANTILES]
+    assert len(cracks) <= 3 and round(3.4e5) in cracks and round(q[0]) in cracks
+    top = float(np.quantile(dp, 0.99))
+    assert sorted({round(s) for s in z[:, 3]}) == [round(top * 0.1), round(top), round(top * 10)]
+    assert len(starts) == 2 * len(cracks) * 3 <= 27
+    # no data, no poles: nothing to start from; a spec's own box (the generic effect's) is not a narrow axis
+    bare = CandidateSpec("poppet_valve")
+    assert global_starts([(bare, p) for p in ps], [0, 1, 2, 3], base, lo, hi, None) == ([], [0, 1, 2, 3])
+    boxed = CandidateSpec("poppet_valve", {"natural_frequency_Hz": SearchParam("natural_frequency_Hz", 1.0, 4.0, True)})
+    assert global_starts([(boxed, p) for p in search_params(boxed)], [0, 1, 2, 3], base, lo, hi, None)[1] == [1, 2, 3]
+
+
+def test_spectral_peaks_of_a_ringing_residual():
+    """A 2.3 Hz ring (ζ 0.1) in 3-s windows with noise: the pooled periodogram's peak at 2.3 Hz; its damping from
+    the half-power width (resolution-limited, so within a factor 2); noise alone gives no peak above the floor."""
+    rng = np.random.default_rng(11)
+    t = np.arange(0.0, 3.0, 0.004)
+    w = 2 * math.pi * 2.3
+    res = [np.exp(-0.1 * w * t) * np.sin(w * math.sqrt(0.99) * t + k) * 300 + rng.normal(0, 10, t.size)
+           for k in range(6)]
+    peaks = spectral_peaks(res, [t] * 6)
+    assert peaks[0][0] == pytest.approx(2.3, rel=0.06)
+    assert 0.05 <= peaks[0][1] <= 0.2
+    assert spectral_peaks([None], [t]) == []
