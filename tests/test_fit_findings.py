@@ -84,6 +84,20 @@ def test_bound_flag_on_a_constructed_fit():
                              "side": "upper"}]
     assert set(fit.cost) >= {"grid", "refine", "intervals"}
 
+    class GasEngine(FakeProfileEngine):
+        problems = [fake_problem(np.ones(40))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            p = eff["two_state"]  # SSE falls towards an isothermal gas (κ 1, a physical limit) and towards G 1e-15
+            sse = 40.0 * (0.2 + (p["polytropic_exponent"] - 0.9) ** 2 + 0.01 * math.log(p[
+                "refill_conductance_m3_per_s_Pa"] / 1e-16))
+            return np.array([sse]), np.zeros((1, 2)), [np.full(40, math.sqrt(sse / 40.0))]
+
+    gas = fit_joint(GasEngine(), [CandidateSpec("two_state")], {}, {}, np.array([40.0]), np.array([40.0]),
+                    lambda e: None, lambda e: e)
+    assert gas.effects["two_state"]["polytropic_exponent"] == pytest.approx(1.0)
+    assert [f["param"] for f in gas.at_bound] == ["refill_conductance_m3_per_s_Pa"]
+
 
 def test_findings_of_the_selected_effects_and_the_candidate_rows():
     names = [CandidateSpec("poppet_valve"), "friction",
@@ -97,6 +111,10 @@ def test_findings_of_the_selected_effects_and_the_candidate_rows():
     assert found[0]["text"] == ("poppet_valve: damping_ratio ends on its upper bound (3): the form does not fit these "
                                 "data as parametrised; its value is not a result")
     assert found[2]["text"].startswith("unnamed_dynamics@flow:transient: gain ends on its upper bound (0.79)")
+    # a bound that is a physical limit (an isothermal gas) is a result, not a finding; the other parameter is judged
+    gas = {"two_state": {"polytropic_exponent": 1.0, "refill_conductance_m3_per_s_Pa": 1e-15}}
+    assert [f["param"] for f in bound_findings(["two_state"], gas, ["two_state"])] == [
+        "refill_conductance_m3_per_s_Pa"]
     lines = findings_text({"findings": found, "selected": [], "J_by_speed": []})
     assert lines == [f["text"] + "." for f in found]
     # the candidate rows: single fits keyed by the parameter, joint fits by label.parameter
@@ -149,15 +167,23 @@ def test_j_per_speed_and_kind_and_which_got_worse():
     assert [(r["speed_mm_s"], r["kind"]) for r in rows if r["worse"]] == [(s05, "initial"), (s05, "reversal"),
                                                                           (s05, "all"), (s15, "reversal")]
     assert by[(s10, "all")]["change"] < 0 and not by[(s15, "all")]["worse"]
+    # with the windows' entries: the same pooled at each window's least-squares optimum
+    ls = j_by_speed(wins, before, after, [{"ls": {"J": jb}} for jb, _ in scale.values()],
+                    [{"ls": {"J": 0.5 * ja}} for _, ja in scale.values()])
+    r = next(r for r in ls if r["speed_mm_s"] == s10 and r["kind"] == "initial")
+    assert (r["J_before_ls"], r["J_after_ls"]) == (pytest.approx(0.04), pytest.approx(0.005))
+    assert "J_before_ls" not in rows[0]
     d = {"selected": ["poppet_valve"], "findings": [], "J_by_speed": rows}
     lines = findings_text(d)
-    assert lines[0].startswith("J got worse after adding poppet_valve at 1 of 3 test speeds: 0.50 mm/s (")
+    assert lines[0].startswith("J got worse after adding poppet_valve at 1 of 3 test speeds (at the posterior "
+                               "medians): 0.50 mm/s (")
     assert lines[1].startswith("By kind of step, also worse: 1.57 mm/s (reversal) (0.0100 -> 0.0120)")
     # none worse: said so; no effect added: nothing on speeds
     better = j_by_speed(wins, before, [0.5 * r for r in before])
     assert not any(r["worse"] for r in better)
     text = findings_text({"selected": ["poppet_valve"], "J_by_speed": better})
-    assert text[0].startswith("No test speed got worse after adding poppet_valve (J per speed before -> after: ")
+    assert text[0].startswith("No test speed got worse after adding poppet_valve (J per speed at the posterior "
+                              "medians, before -> after: 0.50 mm/s (0.0200 -> 0.0100)")
     same = j_by_speed(wins, before, before)
     assert not any(r["worse"] for r in same)
     assert findings_text({"selected": [], "J_by_speed": same}) == []

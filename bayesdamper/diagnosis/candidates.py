@@ -144,10 +144,12 @@ def _untransform(p, z):
 #: Words of a pressure parameter's name that make it a threshold (:func:`narrow_kind`).
 THRESHOLD_WORDS = ("cracking", "threshold", "opening")
 #: Starts refined by the local search of a candidate with narrow-basin parameters: the best of the grid and the
-#: global starts, and the next best that are distinct from it (:data:`GLOBAL_DISTINCT`). Each refinement is one
-#: Levenberg-Marquardt run on every window (on rig-A 2-15 s for the four-parameter valve, against 20-30 s for its
-#: grid): three keep the search's cost within about twice a single start's, and hold a lightly damped, a heavily
-#: damped (lag-like) and a chattering basin of a valve, the three kinds its profile shows.
+#: global starts, and the next best that are distinct from it (:data:`GLOBAL_DISTINCT`) and within
+#: :data:`GLOBAL_SSE_RATIO` of it; a further start no better than the current model (ΔBIC_eff >= 0 before the
+#: penalty) is not refined. Three hold the three kinds of basin a valve's profile shows (lightly damped and ringing,
+#: heavily damped and lag-like, chattering). Each refinement is a Levenberg-Marquardt run on every window, a few
+#: seconds on rig-A; the global stage as a whole (its starts' screening and the extra refinements) left rig-A's
+#: candidate search at 314 s against 324 s without it (the same selection and J; the machine's noise is larger).
 GLOBAL_REFINE = 3
 #: Levenberg-Marquardt iterations of each of several starts; the best continues to the search's budget
 #: (:data:`~bayesdamper.diagnosis.engine.LM_ITER`). Most refinements converge within it (an iteration each gains
@@ -219,14 +221,20 @@ def bound_flags(items, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[di
     return out
 
 
+def _physical_limits(spec: CandidateSpec) -> set[str]:
+    """Names of ``spec``'s parameters whose bounds are physical limits (``EffectParam.physical_limits``)."""
+    from bayesdamper.physics.effects import EFFECTS
+
+    eff = EFFECTS.get(spec.effect)
+    return {q.name for q in eff.params if getattr(q, "physical_limits", False)} if eff is not None else set()
+
+
 def spec_bound_flags(spec: CandidateSpec, values: dict, prefix: str = "") -> list[dict]:
     """:func:`bound_flags` of the physical ``values`` ``{param: value}`` of ``spec``'s searched parameters (keys
     ``prefix + param``; a parameter missing from ``values`` or not finite is skipped, and so is one whose bounds
     are physical limits, :attr:`~bayesdamper.physics.effects.base.EffectParam.physical_limits`: an isothermal gas
     is physics at its limit, not a form that does not fit)."""
-    from bayesdamper.physics.effects import EFFECTS
-
-    limits = {q.name for q in EFFECTS[spec.effect].params if q.physical_limits} if spec.effect in EFFECTS else set()
+    limits = _physical_limits(spec)
     items, z, lo, hi = [], [], [], []
     for p in search_params(spec):
         if p.name in limits:
@@ -485,7 +493,10 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Candidates whose required parameters are all free (the effects already selected are re-fitted
         with the new one: earlier selections are re-fitted jointly in every round).
     start : dict
-        ``{label: {param: value}}`` starting values; a candidate without one is searched on a grid first.
+        ``{label: {param: value}}`` starting values; a candidate without one is searched on a grid first, and its
+        narrow-basin parameters then by the global stage (module docstring; not for ``grid_only``, ``idx`` or
+        ``max_iter`` 0). The fit's ``at_bound`` lists the parameters that end on a bound (:func:`bound_flags`), its
+        ``cost`` the seconds and evaluations per stage.
     fixed : dict
         ``{effect: {param: value}}`` held at these values.
     current_sse, n_eff : ndarray
@@ -619,7 +630,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             best = cands[int(np.argmin(vals))]
             stage("grid")
         refine_from = [best]
-        if searching and grid_dims:
+        if searching and grid_dims and idx is None:
             # the global stage: starts from the signature and the data on the narrow-basin axes, scored like the
             # grid; the best few distinct starts of both are refined
             def peaks():
@@ -682,7 +693,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     e_hat = effects_at(z_hat)
     n_evals = len(cache) + len(grid_cache)
     keys = [p.name if len(specs) == 1 else f"{spec.label}.{p.name}" for spec, p in flat]
-    flags = bound_flags(list(zip(keys, (p for _, p in flat), strict=True)), np.clip(z_hat, lo, hi), lo, hi)
+    searched = [j for j, (spec, p) in enumerate(flat) if p.name not in _physical_limits(spec)]
+    flags = bound_flags([(keys[j], flat[j][1]) for j in searched], np.clip(z_hat, lo, hi)[searched], lo[searched],
+                        hi[searched])
     if idx is not None:
         _tally(cost)
         return CandidateFit("+".join(s.label for s in specs), {}, {}, float(d_hat + n_new * math.log(n_total)),

@@ -68,12 +68,15 @@ def test_speeds(windows) -> list[float]:
     return [float(np.median(by_test[w.test])) for w in windows]
 
 
-def j_by_speed(windows, base_resid: list[np.ndarray], final_resid: list[np.ndarray]) -> list[dict]:
+def j_by_speed(windows, base_resid: list[np.ndarray], final_resid: list[np.ndarray],
+               base_entries: list[dict] | None = None, final_entries: list[dict] | None = None) -> list[dict]:
     """Pooled eq. (9) J of the baseline and of the final model per test speed and kind of step.
 
     One row per (speed, kind) present and one with kind ``"all"`` per speed, each ``{"speed_mm_s", "kind",
     "n_windows", "J_before", "J_after", "change", "worse"}``: J pooled over the windows of that speed (and kind)
-    from the residuals, ``change`` J_after / J_before - 1, ``worse`` whether J_after exceeds J_before.
+    from the residuals at the posterior medians (the J the diagnosis reports), ``change`` J_after / J_before - 1,
+    ``worse`` whether J_after exceeds J_before; with the windows' entries also ``J_before_ls`` and ``J_after_ls``, the
+    same at each window's least-squares optimum (:func:`pooled_j_ls`).
     """
     speeds = [round(v * 1e3, 4) for v in test_speeds(windows)]
     forces = [w.force for w in windows]
@@ -85,8 +88,12 @@ def j_by_speed(windows, base_resid: list[np.ndarray], final_resid: list[np.ndarr
             idx = [i for i in at if kind == "all" or windows[i].kind == kind]
             jb = pooled_j([base_resid[i] for i in idx], [forces[i] for i in idx])
             ja = pooled_j([final_resid[i] for i in idx], [forces[i] for i in idx])
-            rows.append({"speed_mm_s": float(sp), "kind": kind, "n_windows": len(idx), "J_before": jb, "J_after": ja,
-                         "change": ja / jb - 1.0 if jb > 0 else float("nan"), "worse": bool(ja > jb)})
+            row = {"speed_mm_s": float(sp), "kind": kind, "n_windows": len(idx), "J_before": jb, "J_after": ja,
+                   "change": ja / jb - 1.0 if jb > 0 else float("nan"), "worse": bool(ja > jb)}
+            if base_entries is not None and final_entries is not None:
+                row["J_before_ls"] = pooled_j_ls([base_entries[i] for i in idx], [forces[i] for i in idx])
+                row["J_after_ls"] = pooled_j_ls([final_entries[i] for i in idx], [forces[i] for i in idx])
+            rows.append(row)
     return rows
 
 
@@ -148,10 +155,11 @@ def findings_text(diagnosis: dict) -> list[str]:
     by_kind = [r for r in rows if r["kind"] != "all" and r["worse"] and r["speed_mm_s"] not in worse_speeds]
     if worse:
         lines.append(f"J got worse after adding {added} at {len(worse)} of "
-                     f"{sum(r['kind'] == 'all' for r in rows)} test speeds: " + ", ".join(fmt(r) for r in worse) + ".")
+                     f"{sum(r['kind'] == 'all' for r in rows)} test speeds (at the posterior medians): "
+                     + ", ".join(fmt(r) for r in worse) + ".")
     else:
-        lines.append(f"No test speed got worse after adding {added} (J per speed before -> after: "
-                     + ", ".join(fmt(r) for r in rows if r["kind"] == "all") + ").")
+        lines.append(f"No test speed got worse after adding {added} (J per speed at the posterior medians, before "
+                     "-> after: " + ", ".join(fmt(r) for r in rows if r["kind"] == "all") + ").")
     if by_kind:
         lines.append("By kind of step, also worse: " + ", ".join(fmt(r, True) for r in by_kind) + ".")
     return lines
@@ -201,7 +209,7 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
         "final": {"J_pooled": pooled_j(final_resid, forces), "J_pooled_ls": pooled_j_ls(final_entries, forces),
                   "J": {e["id"]: e["J"] for e in final_entries}},
         "J_pooled_by_velocity_mm_s": per_velocity,
-        "J_by_speed": j_by_speed(windows, base_resid, final_resid),
+        "J_by_speed": j_by_speed(windows, base_resid, final_resid, base_entries, final_entries),
         "findings": bound_findings(selected, fixed, names),
         "p_R_split": {"before": p_r_split(base_entries), "after": p_r_split(final_entries)},
         "drift_before": drift_summary(base_entries, credible_mass, seed) if len(base_entries) >= 3 else {},
