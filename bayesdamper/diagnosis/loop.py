@@ -28,6 +28,7 @@ import numpy as np
 from bayesdamper.diagnosis.attribution import FOLD_ITER as LOVO_FOLD_ITER
 from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j, search_params
+from bayesdamper.diagnosis.findings import findings_text
 from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
 from bayesdamper.diagnosis.unnamed import effect_reading
 from bayesdamper.physics.with_effects import effect_argument
@@ -121,8 +122,6 @@ def report_text(d: dict) -> str:
                 lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
                              f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
                              "the library's effects reproduces it.")
-    from bayesdamper.diagnosis.summary import findings_text
-
     lines += [f"Finding: {x}" for x in findings_text(d)]
     kinds = s.get("parameters_by_kind_median", {})
     if len(kinds) == 2:

@@ -21,6 +21,7 @@ from bayesdamper.diagnosis.calibrated import (
     SEARCH_MIN_S,
 )
 from bayesdamper.diagnosis.candidates import CandidateSpec, pooled_j, reset_search_cost, search_cost, spec_bound_flags
+from bayesdamper.diagnosis.findings import findings_text  # noqa: F401 - re-exported
 from bayesdamper.diagnosis.loop import SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
 from bayesdamper.diagnosis.residual import summarise_structure as _summarise_structure
@@ -134,35 +135,6 @@ def annotate_bounds(rounds: list, names: list) -> None:
                     continue
                 flags += [{**f, "param": key} for f in spec_bound_flags(spec, {name: value})]
             row["at_bound"] = flags
-
-
-def findings_text(diagnosis: dict) -> list[str]:
-    """The findings as report lines: each selected effect's parameter on its bound (:func:`bound_findings`), and
-    which test speeds (and kinds of step) got worse after the selected effects were added, or that none did
-    (:func:`j_by_speed`). Nothing on speeds when no effect was selected."""
-    lines = [f["text"] + "." for f in diagnosis.get("findings") or []]
-    rows = diagnosis.get("J_by_speed") or []
-    if not diagnosis.get("selected") or not rows:
-        return lines
-    added = ", ".join(diagnosis["selected"])
-
-    def fmt(r, kind=False):
-        return (f"{r['speed_mm_s']:.2f} mm/s" + (f" ({r['kind']})" if kind else "")
-                + f" ({r['J_before']:.4f} -> {r['J_after']:.4f})")
-
-    worse = [r for r in rows if r["kind"] == "all" and r["worse"]]
-    worse_speeds = {r["speed_mm_s"] for r in worse}
-    by_kind = [r for r in rows if r["kind"] != "all" and r["worse"] and r["speed_mm_s"] not in worse_speeds]
-    if worse:
-        lines.append(f"J got worse after adding {added} at {len(worse)} of "
-                     f"{sum(r['kind'] == 'all' for r in rows)} test speeds (at the posterior medians): "
-                     + ", ".join(fmt(r) for r in worse) + ".")
-    else:
-        lines.append(f"No test speed got worse after adding {added} (J per speed at the posterior medians, before "
-                     "-> after: " + ", ".join(fmt(r) for r in rows if r["kind"] == "all") + ").")
-    if by_kind:
-        lines.append("By kind of step, also worse: " + ", ".join(fmt(r, True) for r in by_kind) + ".")
-    return lines
 
 
 def _take_search_cost() -> dict:
