@@ -157,7 +157,9 @@ def test_confusion_on_reference_data(case, tmp_path):
     row = {"case": case, "base": sorted(base), "injected": sorted(effects), "selected": d["selected"],
            "J_before": d["baseline"]["J_pooled"], "J_after": d["final"]["J_pooled"], "J_truth": j_truth,
            "ratio": ratio, "first_round": [(c["effect"], round(c["score"], 1), c.get("lovo"))
-                                           for c in d["candidates"][:4]]}
+                                           for c in d["candidates"][:4]],
+           "wall_s": d.get("wall_time_s"),  # the cold diagnose's cost, per phase (the benchmark of the table's cases)
+           "phases_s": {t["phase"]: round(t["s"], 1) for t in d.get("phase_times_s", [])}}
     print("CONFUSION-REF", json.dumps(row, default=str))
     # the calibrated damper of every model the diagnosis ends with, checked by predicting each left-out test
     check = d["prediction_check"]["models"]

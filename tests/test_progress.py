@@ -30,6 +30,10 @@ def test_not_a_terminal_one_summary_line_per_phase():
     assert re.fullmatch(r"stage 2: sampling: 3/3 transients in \d+\.\d s \(3 converged\)", lines[0]), lines[0]
     assert re.fullmatch(r"figures: 5 files in \d+\.\d s", lines[1]), lines[1]
     assert "detailed" not in out.getvalue()
+    # the phases' wall times are kept for the job's record (diagnosis.json: phase_times_s)
+    assert [(t["phase"], t["done"], t["note"]) for t in progress.times] == [("stage 2: sampling", 3, "3 converged"),
+                                                                            ("figures", 5, "")]
+    assert all(t["s"] >= 0 for t in progress.times)
 
 
 def test_terminal_shows_a_bar_with_counts_and_time_left_and_the_messages():

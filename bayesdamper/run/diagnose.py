@@ -373,6 +373,7 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
             diagnosis["figures"] = write_diagnosis_figures(p.out_dir, windows, p.base, final, p.base_resid,
                                                            final_resid, diagnosis)
             ph.done = count_files(diagnosis["figures"])
+    diagnosis["phase_times_s"] = list(progress.times)  # every phase of the run so far, wall seconds
     text = "\n".join([report_text(diagnosis), *comparison_text(diagnosis.get("model_comparison"))])
     close_diagnosis(p.out_dir, diagnosis, text, time.perf_counter() - p.t0, quiet)
     return diagnosis

@@ -51,6 +51,8 @@ class Progress:
         self.silent = enabled is False
         self.terminal = bool(enabled) or (enabled is None and self.stream.isatty())
         self.current: Phase | None = None
+        #: Every finished phase: ``{"phase", "s", "done", "note"}`` (wall seconds), in order.
+        self.times: list[dict] = []
 
     @property
     def enabled(self) -> bool:
@@ -92,6 +94,8 @@ class Progress:
             if bar is not None:
                 bar.close()
             self.current = outer
+        self.times.append({"phase": phase.name, "s": time.perf_counter() - phase.t0, "done": phase.done,
+                           "note": phase.note})
         if not self.silent:
             print(phase.summary(), file=self.stream, flush=True)
 
