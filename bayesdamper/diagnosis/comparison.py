@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bayesdamper.diagnosis.attribution import SPEED_RESOLUTION_M_S
+from bayesdamper.diagnosis.attribution import _speed_keys
 from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint
 
 __all__ = ["ALL", "BASE", "DEFAULT_MODELS", "KINDS", "MARGIN_SE", "BaseModel", "compare_models", "comparison_text",
@@ -136,8 +136,8 @@ def law_value(line: dict, log_speed: float) -> float:
 
 
 def speed_folds(speeds: Sequence[float]) -> list[np.ndarray]:
-    """Folds of window indices, one per test speed (speeds within ``SPEED_RESOLUTION_M_S`` are one), slowest first."""
-    key = [round(abs(float(v)) / SPEED_RESOLUTION_M_S) for v in speeds]
+    """Folds of window indices, one per test speed (as the leave-velocities-out folds key them), slowest first."""
+    key = _speed_keys([float(v) for v in speeds])
     return [np.array([k for k, s in enumerate(key) if s == sp]) for sp in sorted(set(key))]
 
 

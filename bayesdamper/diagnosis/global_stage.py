@@ -103,7 +103,7 @@ def _physical_limits(spec: CandidateSpec) -> set[str]:
     from bayesdamper.physics.effects import EFFECTS
 
     eff = EFFECTS.get(spec.effect)
-    return {q.name for q in eff.params if getattr(q, "physical_limits", False)} if eff is not None else set()
+    return {q.name for q in eff.params if q.physical_limits} if eff is not None else set()
 
 
 def spec_bound_flags(spec: CandidateSpec, values: dict, prefix: str = "") -> list[dict]:
