@@ -243,3 +243,36 @@ def test_log_scaled_sampling_is_the_same_posterior_in_its_log():
     for q in (0.05, 0.25, 0.5, 0.75, 0.95):
         assert np.sqrt(np.quantile(theta[:, 0], q)) == pytest.approx(q, abs=0.05), q
     assert np.std(theta[:, 1]) == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.parametrize("move", ["de", "stretch"])
+@pytest.mark.parametrize("vectorised", [True, False])
+def test_advance_is_emcees_run_mcmc(move, vectorised):
+    """The sampler's own step loop gives emcee's chain, log-densities, acceptances and random stream exactly."""
+    import emcee
+
+    from bayesdamper.inference.sampling import _advance, _log_prob_fn, _moves
+
+    class Target:
+        def __call__(self, x):
+            return float(-0.5 * (x[0] ** 2 + 10.0 * (x[1] - 0.3 * x[0] ** 2) ** 2)) if np.all(np.abs(x) < 8) \
+                else -np.inf
+
+    class Batched(Target):
+        def batch(self, xs):
+            return np.array([self(x) for x in xs])
+
+    lp = Batched() if vectorised else Target()
+    p0 = np.random.default_rng(3).normal(size=(8, 2)) * 0.1
+    runs = []
+    for own in (False, True):
+        s = (emcee.EnsembleSampler(8, 2, lp.batch, moves=_moves(move), vectorize=True) if vectorised
+             else emcee.EnsembleSampler(8, 2, lp, moves=_moves(move)))
+        s.random_state = np.random.RandomState(11).get_state()
+        st = p0
+        for n in (30, 45):  # resumed from the state the first run returns, as sample_posterior does
+            st = (_advance(s, st, n, _log_prob_fn(lp)) if own
+                  else s.run_mcmc(st, n, progress=False, skip_initial_state_check=True))
+        runs.append((s.get_chain(), s.get_log_prob(), s.acceptance_fraction, s._random.get_state()[1]))
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -314,6 +314,54 @@ def _tau(chain: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(tau), tau, np.inf)
 
 
+def _log_prob_fn(log_prob):
+    """emcee's ``compute_log_prob`` for ``log_prob`` without its per-walker Python: the same checks (no infinite or
+    NaN coordinate, no NaN value) and the same float64 values, one call per half-ensemble (``log_prob.batch``
+    where there is one, else row by row); no blobs."""
+    batch = getattr(log_prob, "batch", None)
+
+    def compute(coords):
+        if not np.all(np.isfinite(coords)):
+            raise ValueError("At least one parameter value was infinite or NaN")
+        vals = np.array(batch(coords) if batch is not None else [float(log_prob(z)) for z in coords],
+                        dtype=np.float64).reshape(-1)
+        if np.any(np.isnan(vals)):
+            raise ValueError("Probability function returned NaN")
+        return vals, None
+
+    return compute
+
+
+def _advance(sampler, state, n: int, compute):
+    """``sampler.run_mcmc(state, n, skip_initial_state_check=True)`` without the per-step bookkeeping that costs
+    as much as a cheap posterior: each step draws its move from the sampler's own generator, proposes, and is stored
+    in the sampler's backend, exactly as emcee's ``EnsembleSampler.sample`` does (the same random stream, chain,
+    log-densities and acceptances), but the generator's state is not copied into every step's ``State`` (emcee only
+    reports it there) and the log-density goes through ``compute`` (:func:`_log_prob_fn`). Returns the last state.
+    """
+    from emcee.model import Model
+    from emcee.state import State
+
+    state = State(state, copy=True)
+    if state.random_state is not None:  # a State that carries a generator state resumes from it, as in emcee
+        sampler.random_state = state.random_state
+        state.random_state = None
+    if state.log_prob is None:
+        state.log_prob, state.blobs = compute(state.coords)
+    if np.shape(state.log_prob) != (sampler.nwalkers,) or np.any(np.isnan(state.log_prob)):
+        raise ValueError("The initial log_prob was NaN or of the wrong shape")
+    backend, random = sampler.backend, sampler._random
+    backend.grow(n, state.blobs)
+    model = Model(sampler.log_prob_fn, compute, map, random)
+    moves, weights = sampler._moves, sampler._weights
+    for _ in range(n):
+        move = random.choice(moves, p=weights)
+        state, accepted = move.propose(model, state)
+        backend.save_step(state, accepted)
+    sampler._previous_state = state
+    return state
+
+
 def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray, lower: np.ndarray,
                      upper: np.ndarray, settings: SamplerSettings | None = None, seed: int = 0,
                      progress: Callable[[str], None] | None = None,
@@ -362,6 +410,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         return emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=moves)
 
     pilot = settings.move == "de+pilot"
+    compute = _log_prob_fn(log_prob)
     samplers, states = [], []
     for ss in seeds:
         rng = np.random.default_rng(ss)
@@ -375,11 +424,10 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     # emcee refuses to start from an ensemble whose coordinates are badly conditioned (a performance heuristic, with
     # no bearing on correctness): the ball of initial_positions follows the Laplace covariance, which on a thin ridge
     # is nearly singular, and an ensemble sampling left on such a ridge is a valid state. The check is skipped; a
-    # walker cloud that cannot move shows in τ and the convergence rules.
+    # walker cloud that cannot move shows in τ and the convergence rules (:func:`_advance` makes no such check).
     if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
         n_pilot = min(PILOT_STEPS, settings.max_steps)
-        states = [s.run_mcmc(st, n_pilot, progress=False, skip_initial_state_check=True)
-                  for s, st in zip(samplers, states, strict=True)]
+        states = [_advance(s, st, n_pilot, compute) for s, st in zip(samplers, states, strict=True)]
         pilot_chain = np.stack([s.get_chain() for s in samplers])
         indep = pilot_proposal(pilot_chain)
         share = INDEPENDENCE_SHARE
@@ -411,8 +459,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     burn = 0
     while n_steps < settings.max_steps:
         n = min(settings.check_every, settings.max_steps - n_steps)
-        states = [s.run_mcmc(st, n, progress=False, skip_initial_state_check=True)
-                  for s, st in zip(samplers, states, strict=True)]
+        states = [_advance(s, st, n, compute) for s, st in zip(samplers, states, strict=True)]
         n_steps += n
         chains = np.stack([s.get_chain() for s in samplers])  # (E, T, W, D)
         burn = min(n_steps // 3, int(math.ceil(10 * np.max(tau)))) if np.all(np.isfinite(tau)) else n_steps // 3
@@ -423,8 +470,11 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
             settled = tau_prev is not None and bool(abs(np.max(tau) - np.max(tau_prev))
                                                     < settings.tau_rtol * np.max(tau))
         tau_prev = tau
-        rhat = post.rhat_across_ensembles(kept)
-        ess = post.ess_bulk(kept)
+        # R-hat and ESS decide only once the chain is long enough and τ has settled; they are also reported at
+        # the step budget and in the progress line (the same values a computation at every check gives there)
+        if progress is not None or (long_enough and settled) or n_steps >= settings.max_steps:
+            rhat = post.rhat_across_ensembles(kept)
+            ess = post.ess_bulk(kept)
         if progress is not None:
             progress(f"steps {n_steps}: τ_max {np.max(tau):.1f}, chain/τ {kept.shape[1] / np.max(tau):.0f}, "
                      f"R-hat {np.max(rhat):.3f}, ESS {np.min(ess):.0f}")

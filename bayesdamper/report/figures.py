@@ -43,8 +43,10 @@ DIAGNOSTIC_FORMATS = ("png",)
 CORNER_BINS = 20
 #: Draws shown per corner plot at most (evenly thinned).
 CORNER_MAX_SAMPLES = 10000
-#: Fewest figures worth starting worker processes for.
+#: Fewest figures worth starting worker processes for (per-transient diagnostics: some 0.2 s each).
 MIN_JOBS_FOR_POOL = 6
+#: The same for the diagnosis's figures: each is a paper figure in two formats (1-3 s), so two are worth a pool.
+MIN_DIAGNOSIS_JOBS_FOR_POOL = 2
 
 #: One figure to draw: (output key, name of the plots function, args, kwargs, stem, formats).
 Job = tuple[str, str, tuple, dict, Path, tuple[str, ...]]
@@ -76,8 +78,8 @@ def _warm_up() -> None:
     fig.savefig(io.BytesIO(), format="png")
 
 
-def _run(jobs: list[Job], workers: int) -> list[list[Path]]:
-    if workers <= 1 or len(jobs) < MIN_JOBS_FOR_POOL:
+def _run(jobs: list[Job], workers: int, min_jobs: int = MIN_JOBS_FOR_POOL) -> list[list[Path]]:
+    if workers <= 1 or len(jobs) < min_jobs:
         return [_render(j) for j in jobs]
     if "fork" in mp.get_all_start_methods():
         ctx = mp.get_context("fork")
@@ -245,6 +247,6 @@ def write_diagnosis_figures(out_dir: Path, windows, base, final, base_resid, fin
                              {"title": f"{sid}, {label}: J = {r.entry['J']:.3f}"},
                              fig_dir / "diagnosis_loops" / f"{sid}_{key.split('_')[1]}", DIAGNOSTIC_FORMATS))
     written: dict[str, list[str]] = {}
-    for job, paths in zip(jobs, _run(jobs, workers or os.cpu_count() or 1), strict=True):
+    for job, paths in zip(jobs, _run(jobs, workers or os.cpu_count() or 1, MIN_DIAGNOSIS_JOBS_FOR_POOL), strict=True):
         written.setdefault(job[0], []).extend(Path(p).relative_to(out_dir).as_posix() for p in paths)
     return written

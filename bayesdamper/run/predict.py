@@ -255,11 +255,10 @@ def predict(results: str | Path, input: str | Path, out: str | Path | None = Non
     return pred
 
 
-def write_calibration(path: Path, results: list, damper, effects: dict | None, *, seed: int, credible_mass: float,
-                      provenance: dict, progress=None, records=()) -> tuple[Calibration | None, dict]:
-    """Fit the calibration of ``results`` (:func:`~bayesdamper.inference.calibration.calibrate`), write it to
-    ``path`` and return it with the drift law's summary for the results' JSON; where there are too few windows or
-    speeds for a law, nothing is written, no calibration is returned and the summary says why."""
+def _fit_calibration(results: list, damper, effects: dict | None, *, seed: int, provenance: dict,
+                     records=()) -> tuple[Calibration | None, dict]:
+    """The calibration of ``results`` (:func:`~bayesdamper.inference.calibration.calibrate`) and the seconds it
+    took; ``(None, {"fitted": False, "reason": ...})`` where there are too few windows or speeds for a law."""
     from bayesdamper.inference.calibration import calibrate
 
     t0 = time.perf_counter()
@@ -269,24 +268,69 @@ def write_calibration(path: Path, results: list, damper, effects: dict | None, *
                         covariate_name=name)
     except ValueError as err:
         return None, {"fitted": False, "reason": str(err)}
+    return cal, {"wall_s": time.perf_counter() - t0}
+
+
+def _save_calibration(path: Path, cal: Calibration | None, fit: dict, credible_mass: float,
+                      progress=None) -> dict:
+    """Write a fitted calibration to ``path`` and return the drift law's summary for the results' JSON (``fit``
+    from :func:`_fit_calibration`; an unfitted one is returned as it is)."""
+    if cal is None:
+        return fit
     cal.save(path)
     out = {"fitted": True, "file": path.name, "model": cal.model, **cal.hierarchy.summary(credible_mass),
            "prediction_noise": {"sigma_N": cal.noise_sigma_N, "phi": cal.noise_phi,
                                 "rate_Hz": cal.sample_rate_Hz},
-           "wall_s": time.perf_counter() - t0}
+           "wall_s": fit["wall_s"]}
     if progress is not None:
         sm = out["sampling"]
         progress(f"drift law ({cal.model}): {len(cal.hierarchy.windows)} windows, "
                  f"{'converged' if sm['converged'] else 'NOT converged'} (R-hat {sm['rhat_max']:.3f}), "
                  f"{out['wall_s']:.1f} s")
-    return cal, out
+    return out
+
+
+def write_calibration(path: Path, results: list, damper, effects: dict | None, *, seed: int, credible_mass: float,
+                      provenance: dict, progress=None, records=()) -> tuple[Calibration | None, dict]:
+    """Fit the calibration of ``results`` (:func:`~bayesdamper.inference.calibration.calibrate`), write it to
+    ``path`` and return it with the drift law's summary for the results' JSON; where there are too few windows or
+    speeds for a law, nothing is written, no calibration is returned and the summary says why."""
+    cal, fit = _fit_calibration(results, damper, effects, seed=seed, provenance=provenance, records=records)
+    return cal, _save_calibration(path, cal, fit, credible_mass, progress)
+
+
+#: What the worker processes of :func:`calibrate_and_check` read (inherited by fork, not sent with every task).
+_CHECK: dict = {}
+
+
+def _check_calibration_task(key: str) -> tuple[Calibration | None, dict]:
+    """Worker task of :func:`calibrate_and_check`: the calibration of the job ``key``."""
+    c = _CHECK
+    return _fit_calibration(c["results"][key], c["damper"], c["effects"][key], seed=c["seed"],
+                            provenance=c["provenance"], records=c["records_seq"])
+
+
+def _check_loo_task(task) -> tuple[dict | None, float]:
+    """Worker task of :func:`calibrate_and_check`: one test left out of a calibration (its row) and its seconds."""
+    cal, test = task
+    c = _CHECK
+    t0 = time.perf_counter()
+    row = _loo_row(cal, cal.windows, test, c["by_test"][test], c["records"], seed=c["seed"], n_draws=LOO_DRAWS,
+                   workers=1)
+    return row, time.perf_counter() - t0
 
 
 def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: list, effects: dict, *, seed: int,
                         credible_mass: float, provenance: dict, workers: int, progress) -> dict:
     """The calibrations of a diagnosis (eq. (7), and with the selected ``effects`` if any) written to ``out_dir``,
     and the leave-one-test-out check of both: ``{"drift_model_before", "drift_model_after", "prediction_check"}``.
-    A final calibration of an earlier run is removed when no effect is selected."""
+    A final calibration of an earlier run is removed when no effect is selected.
+
+    With ``workers`` > 1 the calibrations and the tests left out are tasks of one pool of forked processes: the
+    calibrations first, each calibration's tests as soon as it is fitted. Every task is seeded as in the serial run,
+    so the results do not depend on ``workers``; a model's ``wall_s`` is then the time from its calibration to its
+    last row.
+    """
     out = {}
     records = {r.name: r for r in ds.records}
     check = {"n_draws": LOO_DRAWS, "method": "each test's windows left out of the drift law (importance "
@@ -298,18 +342,68 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
         jobs.append(("after", "with the diagnosed effects", final_path, final, effects))
     elif final_path.exists():
         final_path.unlink()
-    for key, label, path, results, eff in jobs:
-        cal, summ = write_calibration(path, results, ds.damper, eff, seed=seed, credible_mass=credible_mass,
-                                      provenance=provenance, progress=progress, records=ds.records)
-        out[f"drift_model_{key}"] = summ
-        if cal is None:
+    by_test = _windows_by_test(windows)
+    tests = [t for t in by_test if t in records]
+    if workers <= 1:
+        for key, label, path, results, eff in jobs:
+            cal, summ = write_calibration(path, results, ds.damper, eff, seed=seed, credible_mass=credible_mass,
+                                          provenance=provenance, progress=progress, records=ds.records)
+            out[f"drift_model_{key}"] = summ
+            if cal is None:
+                continue
+            t0 = time.perf_counter()
+            rows = leave_one_test_out(cal, cal.windows, windows, records, seed=seed, workers=workers)
+            check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
+                                      **_pooled(rows)}
+            if progress is not None and rows:
+                progress(check_line(cal.model, check["models"][label], len(rows)))
+        out["prediction_check"] = check
+        return out
+
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    from bayesdamper.run.stages import _pool
+
+    global _CHECK
+    _CHECK = {"results": {j[0]: j[3] for j in jobs}, "effects": {j[0]: j[4] for j in jobs}, "damper": ds.damper,
+              "seed": seed, "provenance": provenance, "records_seq": list(ds.records), "records": records,
+              "by_test": by_test}
+    spec = {j[0]: j for j in jobs}
+    cals, rows, started, ended = {}, {}, {}, {}
+    try:
+        with _pool(workers) as ex:
+            try:
+                pending = {ex.submit(_check_calibration_task, key): ("cal", key, None) for key, *_ in jobs}
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        kind, key, test = pending.pop(fut)
+                        if kind == "cal":
+                            _, _, path, _, _ = spec[key]
+                            cal, fit = fut.result()
+                            out[f"drift_model_{key}"] = _save_calibration(path, cal, fit, credible_mass, progress)
+                            if cal is None:
+                                continue
+                            cals[key], started[key] = cal, time.perf_counter()
+                            for t in tests:
+                                pending[ex.submit(_check_loo_task, (cal, t))] = ("loo", key, t)
+                        else:
+                            rows[(key, test)] = fut.result()[0]
+                            ended[key] = time.perf_counter()
+            except BaseException:  # interrupted or failed: do not start the queued tasks
+                ex.shutdown(wait=True, cancel_futures=True)
+                raise
+    finally:
+        _CHECK = {}
+    for key, label, *_ in jobs:  # in the serial run's order
+        if key not in cals:
             continue
-        t0 = time.perf_counter()
-        rows = leave_one_test_out(cal, cal.windows, windows, records, seed=seed, workers=workers)
-        check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
-                                  **_pooled(rows)}
-        if progress is not None and rows:
-            progress(check_line(cal.model, check["models"][label], len(rows)))
+        model_rows = [r for t in tests if (r := rows[(key, t)]) is not None]
+        check["models"][label] = {"model": cals[key].model, "rows": model_rows,
+                                  "wall_s": ended.get(key, started[key]) - started[key], **_pooled(model_rows)}
+        if progress is not None and model_rows:
+            progress(check_line(cals[key].model, check["models"][label], len(model_rows)))
+    out = {k: out[k] for k in (f"drift_model_{j[0]}" for j in jobs)}
     out["prediction_check"] = check
     return out
 
@@ -330,6 +424,14 @@ def _pooled(rows: list[dict]) -> dict:
             if any(k in r for r in rows)}
 
 
+def _windows_by_test(windows: list) -> dict[str, list]:
+    """The windows of each test, tests in the order of their first window."""
+    by_test: dict[str, list] = {}
+    for w in windows:
+        by_test.setdefault(w.test, []).append(w)
+    return by_test
+
+
 def leave_one_test_out(cal: Calibration, windows_draws: list, windows: list, records: dict, *, seed: int = 0,
                        n_draws: int = LOO_DRAWS, workers: int = 1) -> list[dict]:
     """The check that predictions are honest: for every test, the law without that test's windows
@@ -341,38 +443,41 @@ def leave_one_test_out(cal: Calibration, windows_draws: list, windows: list, rec
     The flow coefficients and the measurement noise keep every test (they come from the plateaus of all tests, or
     from all windows): only the law of α_V and p_R leaves the test out.
     """
+    rows = []
+    for test, ws in _windows_by_test(windows).items():
+        row = _loo_row(cal, windows_draws, test, ws, records, seed=seed, n_draws=n_draws, workers=workers)
+        if row is not None:
+            rows.append(row)
+    return rows
+
+
+def _loo_row(cal: Calibration, windows_draws: list, test: str, ws: list, records: dict, *, seed: int,
+             n_draws: int, workers: int) -> dict | None:
+    """The row of :func:`leave_one_test_out` of ``test`` (its windows ``ws``), None where it has no record."""
     from dataclasses import replace
 
     from bayesdamper.inference.hierarchy import leave_out
 
-    rows = []
-    by_test: dict[str, list] = {}
-    for w in windows:
-        by_test.setdefault(w.test, []).append(w)
-    for test, ws in by_test.items():
-        rec = records.get(test)
-        if rec is None:
-            continue
-        ids = {w.id for w in ws}
-        speed = float(np.median([w.velocity for w in ws]))
-        row = {"test": test, "speed_m_s": speed, "n_windows_left_out": len(ids)}
-        try:
-            law = leave_out(cal.hierarchy, windows_draws, test, seed=seed)
-        except ValueError as err:  # too few tests without it for a law
-            rows.append(row | {"law": f"none: {err}"})
-            continue
-        drive = ws[0].drive
-        v0 = float(drive.velocity(rec.time[:1])[0])
-        cov = float(np.mean(rec.temperature)) if cal.hierarchy.covariate is not None \
-            and getattr(rec, "temperature", None) is not None else None
-        try:
-            p = predict_history(replace(cal, hierarchy=law), rec.time, drive, speed, v0, measured=rec.force,
-                                n_draws=n_draws, seed=seed, workers=workers, covariate=cov)
-        except DataError as err:  # every draw failed to solve
-            rows.append(row | {"law": law.sampling.get("method", "re-fitted"), "failed": str(err)})
-            continue
-        lo, hi = law.speed_range
-        rows.append(row | {"law": law.sampling.get("method", "re-fitted"), "extrapolated": not lo <= speed <= hi,
-                     "failed_solves": p.info["failed_solves"],
-                     **{k: p.info[k] for k in ("coverage_90", "coverage_50", "J_median") if k in p.info}})
-    return rows
+    rec = records.get(test)
+    if rec is None:
+        return None
+    ids = {w.id for w in ws}
+    speed = float(np.median([w.velocity for w in ws]))
+    row = {"test": test, "speed_m_s": speed, "n_windows_left_out": len(ids)}
+    try:
+        law = leave_out(cal.hierarchy, windows_draws, test, seed=seed)
+    except ValueError as err:  # too few tests without it for a law
+        return row | {"law": f"none: {err}"}
+    drive = ws[0].drive
+    v0 = float(drive.velocity(rec.time[:1])[0])
+    cov = float(np.mean(rec.temperature)) if cal.hierarchy.covariate is not None \
+        and getattr(rec, "temperature", None) is not None else None
+    try:
+        p = predict_history(replace(cal, hierarchy=law), rec.time, drive, speed, v0, measured=rec.force,
+                            n_draws=n_draws, seed=seed, workers=workers, covariate=cov)
+    except DataError as err:  # every draw failed to solve
+        return row | {"law": law.sampling.get("method", "re-fitted"), "failed": str(err)}
+    lo, hi = law.speed_range
+    return row | {"law": law.sampling.get("method", "re-fitted"), "extrapolated": not lo <= speed <= hi,
+                  "failed_solves": p.info["failed_solves"],
+                  **{k: p.info[k] for k in ("coverage_90", "coverage_50", "J_median") if k in p.info}}
