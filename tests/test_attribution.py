@@ -1,11 +1,13 @@
 """The out-of-sample evidence: folds of whole speeds, the pass rule, paired differences."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, paired, velocity_folds
+from bayesdamper.diagnosis.candidates import CandidateSpec
 from bayesdamper.diagnosis.loop import lovo_passes
 
 
@@ -159,3 +161,44 @@ def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sampl
     # without speed folds there is no out-of-sample comparison: a passing physical option wins
     best, rec = _last_resort_case([60.0, 70.0, 65.0, 80.0, 75.0], [20.0, 25.0, 30.0, 35.0, 30.0], True, folds=False)
     assert best["effect"] == "two_state"
+
+
+def test_the_two_state_screen_is_skipped_when_the_two_state_model_is_the_current_one(monkeypatch):
+    """Pairs of the two-state model: screened candidates on it when it improves on the current model (ΔBIC_eff < 0),
+    the round's own best singles when it does not (a screen on it would repeat them)."""
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = {n: CandidateSpec(n) for n in ("two_state", "friction", "backlash", "inertia", "leakage")}
+    calls = []
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+        calls.append(("screen" if grid_only else "pair", tuple(c.label for c in cands), tuple(fixed)))
+        # on the two-state model the screen ranks the candidates in the reverse of the round's own order
+        score = {"friction": -5.0, "backlash": -10.0, "inertia": -20.0, "leakage": -30.0}.get(cands[-1].label, 0.0)
+        return SimpleNamespace(labels=tuple(c.label for c in cands), delta_bic=score,
+                               effects={c.effect: {} for c in cands}, effect="+".join(c.label for c in cands))
+
+    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    singles = [SimpleNamespace(labels=(n,), delta_bic=s, effects={n: {}}, effect=n)
+               for n, s in (("friction", -40.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
+
+    class Progress:
+        def __call__(self, msg):
+            pass
+
+        def advance(self):
+            pass
+
+    def run(ts_score):
+        calls.clear()
+        ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state")
+        out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None, Progress())
+        return [c[1] for c in calls if c[0] == "screen"], [o.labels for o in out]
+
+    screens, pairs = run(+9.9)  # no better than the current model: no screen, pairs from the round's best singles
+    assert screens == []
+    assert pairs == [("two_state", "friction"), ("two_state", "backlash"), ("two_state", "inertia")]
+    screens, pairs = run(-500.0)  # the two-state model changes the fit: every other candidate screened on it
+    assert sorted(screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
+    assert all(c[2] == ("two_state",) for c in calls if c[0] == "screen")
+    assert pairs == [("two_state", "leakage"), ("two_state", "inertia"), ("two_state", "backlash")]

@@ -272,3 +272,31 @@ def test_spectral_peaks_of_a_ringing_residual():
     assert peaks[0][0] == pytest.approx(2.3, rel=0.06)
     assert 0.05 <= peaks[0][1] <= 0.2
     assert spectral_peaks([None], [t]) == []
+
+
+def test_a_known_optimum_of_one_parameter_is_scored_there_without_a_search():
+    """The selected option's intervals are computed at its optimum (``max_iter`` 0): a one-parameter fit with a
+    start is scored at the start itself, not re-searched on a grid, and gets a finite interval about it."""
+    calls = []
+
+    class Engine(FakeProfileEngine):
+        problems = [fake_problem(np.ones(40))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            tau = eff["actuator_lag"]["time_constant_s"]
+            calls.append(tau)
+            sse = 40.0 * (0.2 + 0.5 * math.log(tau / 0.05) ** 2)  # the optimum at 0.05 s, inside the box
+            return np.array([sse]), np.zeros((1, 2)), [np.full(40, math.sqrt(sse / 40.0))]
+
+    fit = fit_joint(Engine(), [CandidateSpec("actuator_lag")], {"actuator_lag": {"time_constant_s": 0.06}}, {},
+                    np.array([40.0]), np.array([40.0]), lambda e: None, lambda e: e, max_iter=0)
+    assert fit.effects["actuator_lag"]["time_constant_s"] == pytest.approx(0.06)
+    assert "grid" not in fit.cost and len(calls) == 3  # the start and the two points of its curvature
+    p = fit.params["time_constant_s"]
+    assert p["lo"] < 0.06 < p["hi"] and math.isfinite(p["lo"]) and math.isfinite(p["hi"])
+    # the same candidate without a start is searched on its grid first
+    calls.clear()
+    searched = fit_joint(Engine(), [CandidateSpec("actuator_lag")], {}, {}, np.array([40.0]), np.array([40.0]),
+                         lambda e: None, lambda e: e)
+    assert "grid" in searched.cost and len(calls) > 3
+    assert searched.effects["actuator_lag"]["time_constant_s"] == pytest.approx(0.05, rel=0.05)

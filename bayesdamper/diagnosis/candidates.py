@@ -175,9 +175,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Score the grid's best point without refining it and without intervals (a screen: later rounds rank the
         remaining candidates this way before re-fitting the best jointly with the selected effects).
     intervals_to : float
-        Intervals only for a fit whose ΔBIC_eff is at most this (the loop's first round: the selection threshold;
-        a candidate that cannot be selected is reported with its optimum alone, sparing two re-fits of every
-        window per parameter).
+        Intervals only for a fit whose ΔBIC_eff is at most this (the loop's search: -inf, none; it computes the
+        selected option's intervals at its optimum with ``max_iter`` 0, sparing two re-fits of every window per
+        parameter of every other option).
     """
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
@@ -250,7 +250,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         cost[name] = {"s": now - clock[0], "evaluations": n - clock[1], **more}
         clock[:] = [now, n]
 
-    if len(flat) == 1:
+    if len(flat) == 1 and max_iter == 0 and not grid_dims:  # the score and intervals at a known optimum
+        z_hat = z0
+    elif len(flat) == 1:
         grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS), *(starts_of(0) if grid_dims else [])}))
         vals = [grid_objective([g]) for g in grid]
         i = int(np.argmin(vals))

@@ -23,6 +23,8 @@ effect may explain what an earlier one approximated).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from bayesdamper.diagnosis.attribution import FOLD_ITER as LOVO_FOLD_ITER
@@ -41,6 +43,10 @@ SELECT_DELTA_BIC = -10.0
 MIN_J_REDUCTION = 0.2
 #: Rounds of the select-and-refit loop.
 MAX_ROUNDS = 3
+#: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the intervals of the
+#: option selected are computed at its optimum once it is selected (two re-fits of every window per parameter, and
+#: about 2 n² for the marginal intervals of n parameters, spared for every option that is not).
+NO_INTERVALS = -math.inf
 
 
 def report_text(d: dict) -> str:
@@ -239,7 +245,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
             # after the first round: screened with the selected effects held at their values, by the grid alone ...
             fits.append(fit_joint(engine, [specs[label]], {}, fixed, current["sse"], n_eff, flow_for,
-                                  effect_argument, grid_only=bool(sel_specs), intervals_to=SELECT_DELTA_BIC))
+                                  effect_argument, grid_only=bool(sel_specs), intervals_to=NO_INTERVALS))
             progress.advance()
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
@@ -249,7 +255,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st = dict(start)
                 st[c.effect] = c.effects[specs[c.effect].effect]
                 fits[fits.index(c)] = fit_joint(engine, sel_specs + [specs[c.effect]], st, {}, current["sse"], n_eff,
-                                                flow_for, effect_argument, new=(c.effect,))
+                                                flow_for, effect_argument, new=(c.effect,), intervals_to=NO_INTERVALS)
                 held.discard(c.effect)
         singles = sorted(fits, key=lambda c: c.delta_bic)
         seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
@@ -262,7 +268,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st[a.effect] = a.effects[specs[a.effect].effect]
                 st[b.effect] = b.effects[specs[b.effect].effect]
                 fits.append(fit_joint(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {}, current["sse"],
-                                      n_eff, flow_for, effect_argument, new=(a.effect, b.effect)))
+                                      n_eff, flow_for, effect_argument, new=(a.effect, b.effect),
+                                      intervals_to=NO_INTERVALS))
         if not sel_specs:
             fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
         fits.sort(key=lambda c: c.delta_bic)
@@ -314,14 +321,16 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if best is None:
             break
         fit = next(c for c in fits if c.effect == best["effect"])
-        if sum(len(search_params(specs[lab])) for lab in fit.labels) > 1:
-            # the selection's intervals with every parameter free (the search's are each axis' own)
-            cand = sel_specs + [specs[lab] for lab in fit.labels]
-            st = {sp.label: fit.effects[sp.effect] for sp in cand}
-            progress(f"diagnose: round {rnd + 1}, marginal intervals of {best['effect']}")
-            best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
-                                       new=fit.labels, max_iter=0, marginal=True).params
-            best["intervals"] = "marginal: inverse of the full profile-likelihood Hessian"
+        # the selection's intervals at its optimum (the search itself reports optima only): with several parameters
+        # each one's uncertainty with the others free, with one its own profile's curvature
+        cand = sel_specs + [specs[lab] for lab in fit.labels]
+        st = {sp.label: fit.effects[sp.effect] for sp in cand}
+        several = sum(len(search_params(sp)) for sp in cand) > 1
+        progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
+        best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
+                                   new=fit.labels, max_iter=0, marginal=several).params
+        best["intervals"] = ("marginal: inverse of the full profile-likelihood Hessian" if several else
+                             "the profile likelihood's curvature")
         for lab in fit.labels:
             selected.append(lab)
             sel_specs.append(specs[lab])
@@ -346,19 +355,26 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
     missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
-    ΔBIC_eff are fitted jointly with it, every parameter free. Returns those joint fits (options like any pair)."""
+    ΔBIC_eff are fitted jointly with it, every parameter free. Returns those joint fits (options like any pair).
+
+    When the two-state model alone does not improve on the current model by the criterion's own measure (ΔBIC_eff
+    >= 0: the better fit does not pay for its parameters), the model it holds is the current one to within what the
+    data resolve, and a screen on it would repeat the round's own single fits: the pairs are then formed from
+    those (the :data:`PAIR_FROM` best singles by ΔBIC_eff) and nothing is screened again."""
     ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
     if ts is None:
         return []
-    held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
-    screened = []
-    for label in remaining:
-        if specs[label].effect == TWO_STATE:
-            continue
-        progress(f"diagnose: round 1, screening {label} on the two-state model")
-        screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
-                                  grid_only=True))
-        progress.advance()
+    others = [lab for lab in remaining if specs[lab].effect != TWO_STATE]
+    if ts.delta_bic >= 0.0:
+        screened = [c for c in fits if len(c.labels) == 1 and c.labels[0] in others]
+    else:
+        held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
+        screened = []
+        for label in others:
+            progress(f"diagnose: round 1, screening {label} on the two-state model")
+            screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for,
+                                      effect_argument, grid_only=True))
+            progress.advance()
     have = {frozenset(c.labels) for c in fits if len(c.labels) == 2}
     out = []
     for c in sorted(screened, key=lambda c: c.delta_bic)[:PAIR_FROM]:
@@ -368,7 +384,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
         st = {pair[0]: ts.effects[TWO_STATE], pair[1]: c.effects[specs[pair[1]].effect]}
         out.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]], st, {}, current_sse, n_eff, flow_for,
-                             effect_argument, new=pair))
+                             effect_argument, new=pair, intervals_to=NO_INTERVALS))
     return out
 
 
@@ -435,7 +451,7 @@ def backward_check(engine, selected: list, sel_specs: list, fixed: dict, current
             progress(f"diagnose: backward check, the model without {lab}")
             st = {sp.label: fixed[sp.effect] for sp in others}
             red = fit_joint(engine, others, st, {}, current["sse"], n_eff, flow_for, effect_argument, new=(),
-                            max_iter=LOVO_FOLD_ITER)
+                            max_iter=LOVO_FOLD_ITER, intervals_to=NO_INTERVALS)
             n_lab = len(search_params(next(sp for sp in sel_specs if sp.label == lab)))
             score = -red.delta_bic + n_lab * float(np.log(max(float(n_eff.sum()), 1.0)))
             rows.append({"effect": lab, "delta_BIC_eff": score, "J_without": red.j_pooled,
