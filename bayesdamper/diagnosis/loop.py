@@ -357,24 +357,21 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
     ΔBIC_eff are fitted jointly with it, every parameter free. Returns those joint fits (options like any pair).
 
-    When the two-state model alone does not improve on the current model by the criterion's own measure (ΔBIC_eff
-    >= 0: the better fit does not pay for its parameters), the model it holds is the current one to within what the
-    data resolve, and a screen on it would repeat the round's own single fits: the pairs are then formed from
-    those (the :data:`PAIR_FROM` best singles by ΔBIC_eff) and nothing is screened again."""
+    The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
+    fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
+    while its pair with the mount is the answer."""
     ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
     if ts is None:
         return []
-    others = [lab for lab in remaining if specs[lab].effect != TWO_STATE]
-    if ts.delta_bic >= 0.0:
-        screened = [c for c in fits if len(c.labels) == 1 and c.labels[0] in others]
-    else:
-        held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
-        screened = []
-        for label in others:
-            progress(f"diagnose: round 1, screening {label} on the two-state model")
-            screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for,
-                                      effect_argument, grid_only=True))
-            progress.advance()
+    held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
+    screened = []
+    for label in remaining:
+        if specs[label].effect == TWO_STATE:
+            continue
+        progress(f"diagnose: round 1, screening {label} on the two-state model")
+        screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
+                                  grid_only=True))
+        progress.advance()
     have = {frozenset(c.labels) for c in fits if len(c.labels) == 2}
     out = []
     for c in sorted(screened, key=lambda c: c.delta_bic)[:PAIR_FROM]:
