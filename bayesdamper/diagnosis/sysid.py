@@ -260,16 +260,17 @@ def _best_threshold(sig: dict, r_list: list, idx: list[int], n: int) -> tuple[fl
 _SHARED: tuple = ()  # the table's inputs, inherited by forked workers
 
 
-def _held_group(held, drivers=None) -> dict:
-    """Scores of every (driver, law, order) with the group ``held`` left out, of the drivers ``drivers`` (default
-    all) (worker task; data in _SHARED)."""
+def _held_part(task) -> dict:
+    """Scores of every (law, order) of one driver with the group ``held`` left out, keyed (driver, law, order)
+    (worker task ``(held, driver)``; data in _SHARED)."""
+    held, driver = task
     sigs, r_dec, groups, orders, burn = _SHARED
     train = [i for i, g in enumerate(groups) if g != held]
     test = [i for i, g in enumerate(groups) if g == held]
     ss = sum(float(np.sum(r_dec[i][burn:] ** 2)) for i in test)
     out = {}
     for (k, law), sig in sigs.items():
-        if drivers is not None and k not in drivers:
+        if k != driver:
             continue
         for n in orders:
             u0, d = _best_threshold(sig, r_dec, train, n)
@@ -282,36 +283,25 @@ def _held_group(held, drivers=None) -> dict:
     return out
 
 
-def _held_part(task) -> dict:
-    """:func:`_held_group` of one (held group, driver) pair (worker task)."""
-    held, driver = task
-    return _held_group(held, (driver,))
-
-
 def _held_out_scores(sigs, r_dec, groups, orders, burn: int, workers: int = 1) -> list[CandidateScore]:
-    """Leave-one-group-out mean score and SE of every (driver, law, order), best first (with ``workers`` > 1, every
-    (held-out group, driver) pair a task of forked processes: some 40 tasks of about equal cost keep the workers
-    evenly loaded, where one task per group left one worker idle for the last group; the scores are the same)."""
+    """Leave-one-group-out mean score and SE of every (driver, law, order), best first. The tasks are the (held-out
+    group, driver) pairs (with ``workers`` > 1 in forked processes: some 40 tasks of about equal cost keep the
+    workers evenly loaded); ``sigs`` is driver-major (:func:`_signals`), so a group's scores merge in the order of
+    ``sigs`` and then ``orders`` whichever way they ran."""
     global _SHARED
     labels, _SHARED = sorted(set(groups)), (sigs, r_dec, groups, orders, burn)
+    tasks = [(held, k) for held in labels for k in dict.fromkeys(k for k, _ in sigs)]
     try:
         if workers > 1 and "fork" in mp.get_all_start_methods():
-            drivers = list(dict.fromkeys(k for k, _ in sigs))
-            tasks = [(held, k) for held in labels for k in drivers]
             with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=mp.get_context("fork")) as pool:
                 parts = list(pool.map(_held_part, tasks))
-            results = [{} for _ in labels]
-            for (held, _), part in zip(tasks, parts, strict=True):
-                results[labels.index(held)].update(part)
-            # each group's scores in the order one task per group gives them (sigs' order, then orders)
-            results = [{key: res[key] for key in sorted(res, key=_order_key(sigs, orders))} for res in results]
         else:
-            results = list(map(_held_group, labels))
+            parts = list(map(_held_part, tasks))
     finally:
         _SHARED = ()
     by_cand: dict[tuple, dict[str, float]] = {}
-    for held, res in zip(labels, results, strict=True):
-        for key, v in res.items():
+    for (held, _), part in zip(tasks, parts, strict=True):
+        for key, v in part.items():
             by_cand.setdefault(key, {})[held] = v
     out = []
     for (k, law, n), per_group in by_cand.items():
@@ -319,12 +309,6 @@ def _held_out_scores(sigs, r_dec, groups, orders, burn: int, workers: int = 1) -
         se = float(np.std(v, ddof=1) / math.sqrt(v.size)) if np.all(np.isfinite(v)) else math.inf
         out.append(CandidateScore(k, law, n, float(np.mean(v)), se, per_group))
     return sorted(out, key=lambda c: c.score)
-
-
-def _order_key(sigs, orders):
-    """Sort key of (driver, law, order) in the order :func:`_held_group` visits them."""
-    pos = {key: i for i, key in enumerate(sigs)}
-    return lambda key: (pos[key[:2]], list(orders).index(key[2]))
 
 
 def select(candidates: Sequence[CandidateScore], min_relative_gain: float = MIN_RELATIVE_GAIN,
