@@ -299,7 +299,7 @@ def write_calibration(path: Path, results: list, damper, effects: dict | None, *
     return cal, _save_calibration(path, cal, fit, credible_mass, progress)
 
 
-#: What the worker processes of :func:`calibrate_and_check` read (inherited by fork, not sent with every task).
+#: What the tasks of :func:`calibrate_and_check` read (forked workers inherit it; not sent with every task).
 _CHECK: dict = {}
 
 
@@ -326,10 +326,10 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
     and the leave-one-test-out check of both: ``{"drift_model_before", "drift_model_after", "prediction_check"}``.
     A final calibration of an earlier run is removed when no effect is selected.
 
-    With ``workers`` > 1 the calibrations and the tests left out are tasks of one pool of forked processes: the
-    calibrations first, each calibration's tests as soon as it is fitted. Every task is seeded as in the serial run,
-    so the results do not depend on ``workers``; a model's ``wall_s`` is then the time from its calibration to its
-    last row.
+    The calibrations, then every (calibration, test left out) pair, are tasks (:func:`_check_calibration_task`,
+    :func:`_check_loo_task`) of :func:`~bayesdamper.run.stages.run_tasks`, on ``workers`` processes. Every task is
+    seeded as in a run of its own, so the results do not depend on ``workers``; a model's ``wall_s`` is the seconds
+    its tests' tasks took, summed.
     """
     out = {}
     records = {r.name: r for r in ds.records}
@@ -344,68 +344,45 @@ def calibrate_and_check(out_dir: Path, ds, windows: list, base: list, final: lis
         final_path.unlink()
     by_test = _windows_by_test(windows)
     tests = [t for t in by_test if t in records]
-    if workers <= 1:
-        for key, label, path, results, eff in jobs:
-            cal, summ = write_calibration(path, results, ds.damper, eff, seed=seed, credible_mass=credible_mass,
-                                          provenance=provenance, progress=progress, records=ds.records)
-            out[f"drift_model_{key}"] = summ
-            if cal is None:
-                continue
-            t0 = time.perf_counter()
-            rows = leave_one_test_out(cal, cal.windows, windows, records, seed=seed, workers=workers)
-            check["models"][label] = {"model": cal.model, "rows": rows, "wall_s": time.perf_counter() - t0,
-                                      **_pooled(rows)}
-            if progress is not None and rows:
-                progress(check_line(cal.model, check["models"][label], len(rows)))
-        out["prediction_check"] = check
-        return out
 
-    from concurrent.futures import FIRST_COMPLETED, wait
+    from bayesdamper.run.stages import run_tasks
 
-    from bayesdamper.run.stages import _pool
+    def quiet(*_):
+        pass
 
     global _CHECK
     _CHECK = {"results": {j[0]: j[3] for j in jobs}, "effects": {j[0]: j[4] for j in jobs}, "damper": ds.damper,
               "seed": seed, "provenance": provenance, "records_seq": list(ds.records), "records": records,
               "by_test": by_test}
-    spec = {j[0]: j for j in jobs}
-    cals, rows, started, ended = {}, {}, {}, {}
     try:
-        with _pool(workers) as ex:
-            try:
-                pending = {ex.submit(_check_calibration_task, key): ("cal", key, None) for key, *_ in jobs}
-                while pending:
-                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                    for fut in done:
-                        kind, key, test = pending.pop(fut)
-                        if kind == "cal":
-                            _, _, path, _, _ = spec[key]
-                            cal, fit = fut.result()
-                            out[f"drift_model_{key}"] = _save_calibration(path, cal, fit, credible_mass, progress)
-                            if cal is None:
-                                continue
-                            cals[key], started[key] = cal, time.perf_counter()
-                            for t in tests:
-                                pending[ex.submit(_check_loo_task, (cal, t))] = ("loo", key, t)
-                        else:
-                            rows[(key, test)] = fut.result()[0]
-                            ended[key] = time.perf_counter()
-            except BaseException:  # interrupted or failed: do not start the queued tasks
-                ex.shutdown(wait=True, cancel_futures=True)
-                raise
+        fits = run_tasks(_check_calibration_task, [j[0] for j in jobs], workers, quiet)
+        cals = _save_calibrations(jobs, fits, out, credible_mass, progress)
+        loo = run_tasks(_check_loo_task, [(cals[key], t) for key in cals for t in tests], workers, quiet)
     finally:
         _CHECK = {}
-    for key, label, *_ in jobs:  # in the serial run's order
+    done = iter(loo)
+    for key, label, *_ in jobs:
         if key not in cals:
             continue
-        model_rows = [r for t in tests if (r := rows[(key, t)]) is not None]
+        parts = [next(done) for _ in tests]
+        model_rows = [row for row, _ in parts if row is not None]
         check["models"][label] = {"model": cals[key].model, "rows": model_rows,
-                                  "wall_s": ended.get(key, started[key]) - started[key], **_pooled(model_rows)}
+                                  "wall_s": sum(sec for _, sec in parts), **_pooled(model_rows)}
         if progress is not None and model_rows:
             progress(check_line(cals[key].model, check["models"][label], len(model_rows)))
-    out = {k: out[k] for k in (f"drift_model_{j[0]}" for j in jobs)}
     out["prediction_check"] = check
     return out
+
+
+def _save_calibrations(jobs: list, fits: list, out: dict, credible_mass: float, progress) -> dict:
+    """Write each job's fitted calibration (:func:`_save_calibration`), its summary into ``out``
+    (``drift_model_<key>``); returns the fitted ones by key."""
+    cals = {}
+    for (key, _, path, _, _), (cal, fit) in zip(jobs, fits, strict=True):
+        out[f"drift_model_{key}"] = _save_calibration(path, cal, fit, credible_mass, progress)
+        if cal is not None:
+            cals[key] = cal
+    return cals
 
 
 def check_line(model: str, pooled: dict, n_tests: int) -> str:
