@@ -40,17 +40,10 @@ from scipy.optimize import minimize, minimize_scalar
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.engine import INFEASIBLE, LM_ITER, ProfileEngine, _profile_lm
 from bayesdamper.diagnosis.global_stage import (  # noqa: F401 - re-exported
-    BOUND_FRACTION,
-    GLOBAL_AXIS_VALUES,
-    GLOBAL_DISTINCT,
     GLOBAL_LM_ITER,
     GLOBAL_REFINE,
     GLOBAL_SSE_RATIO,
-    PEAK_SHARE,
-    SPAN_FACTORS,
     THRESHOLD_QUANTILES,
-    THRESHOLD_WORDS,
-    _axis_values,
     _distinct_best,
     _physical_limits,
     _tally,
