@@ -97,7 +97,7 @@ __all__ = [
 EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
     "command_displacement": {"bandwidth_Hz": None, "damping_ratio": None},
     "poppet_valve": {"natural_frequency_Hz": None, "damping_ratio": None, "cracking_pressure_Pa": None,
-                     "span_Pa": 1e6},
+                     "span_Pa": 1e6, "bleed_fraction": 0.1},
     "accumulator": {"charge_pressure_Pa": None, "conductance_m3_per_s_Pa": None},
     "gas_spring": {"stiffness_N_per_m": None},
     "load_cell_offset": {"offset_N": None},
@@ -129,8 +129,8 @@ BASES = ("accumulator", "two_state_damper")
 #: gas spring, the unnamed filter's force) or their driver v_P would close an algebraic loop through the mount.
 NOT_WITH_MOUNT = ("gas_spring", "seal_friction", "unnamed_dynamics")
 
-#: ε of the poppet flow scaling (ε + clip(x, 0, 1)) / (ε + s(Δp)).
-POPPET_EPSILON = 0.1
+#: Default ε of the poppet flow scaling (ε + clip(x, 0, 1)) / (ε + s(Δp)) (its ``bleed_fraction``).
+POPPET_EPSILON = EFFECT_PARAMS["poppet_valve"]["bleed_fraction"]
 #: Floor of the absolute chamber pressure used in the accumulator's bulk modulus [Pa].
 ACCUMULATOR_P_FLOOR = 1e4
 #: Below this absolute pressure [Pa] the two-state base's B(p) of eq. (2) is continued linearly to B = 0 at p = 0
@@ -410,7 +410,8 @@ class _Model:
         if "poppet_valve" in fx:
             s = self.opening(dp)
             lift = float(x[idx["poppet_valve"]])
-            q = q_o * (POPPET_EPSILON + min(max(lift, 0.0), 1.0)) / (POPPET_EPSILON + s)
+            eps = fx["poppet_valve"]["bleed_fraction"]
+            q = q_o * (eps + min(max(lift, 0.0), 1.0)) / (eps + s)
         if "leakage" in fx:
             q += fx["leakage"]["conductance_m3_per_s_Pa"] * dp
         if "unnamed_dynamics" in fx and fx["unnamed_dynamics"]["placement"] == 1:

@@ -57,6 +57,9 @@ CASES = [(n, {n: v}) for n, v in NEW.items()] + [
     ("unnamed_transient_flow", {"unnamed_dynamics": {"gain": 0.2, "natural_frequency_Hz": 5.0, "damping_ratio": 1.0,
                                                      "driver": 1, "law": 0, "placement": 1, "mode": 1}}),
     ("poppet+friction", {"poppet_valve": NEW["poppet_valve"], "seal_friction": NEW["seal_friction"]}),
+    # a large bleed: the valve adds a third of the path's flow fully open, and opens fully within the transient
+    ("poppet_bleed", {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.15,
+                                       "cracking_pressure_Pa": 5.0e4, "span_Pa": 2.0e5, "bleed_fraction": 2.0}}),
     ("command+leakage+offset", {"command_displacement": NEW["command_displacement"], "leakage": NEW["leakage"],
                                 "load_cell_offset": NEW["load_cell_offset"]}),
 ]
@@ -125,7 +128,7 @@ def test_non_physical_solve_is_a_failed_status_never_nan_to_the_sampler():
     force, ok = prob.simulate_force(ALPHA_V, P_R, effect_argument({"gas_spring": {}}))  # the cached input
     assert not ok
     # inf * 0 inside a hook (an infinite poppet frequency) is a failed status, not an exception or NaN
-    bad = ComposedEffects(("poppet_valve",), np.array([math.inf, 0.2, 1e5, 1e6]))
+    bad = ComposedEffects(("poppet_valve",), np.array([math.inf, 0.2, 1e5, 1e6, 0.1]))
     _, status = solve_composed(bad, time, PiecewisePolynomial.from_knots(kt, ky), t0, 0.0, 0.0, D, FLOW.as_array(),
                                ALPHA_V, P_R, 1e-8, 1e-3)
     assert status != STATUS_OK

@@ -34,6 +34,7 @@ def test_narrow_kinds_from_names_and_units():
     assert narrow_kind("poppet_valve", "damping_ratio") == "damping"
     assert narrow_kind("poppet_valve", "cracking_pressure_Pa") == "threshold"
     assert narrow_kind("poppet_valve", "span_Pa") == "span"
+    assert narrow_kind("poppet_valve", "bleed_fraction") == "bleed"
     assert narrow_kind("valve_dynamics", "opening_pressure_Pa") == "threshold"
     assert narrow_kind("command_displacement", "bandwidth_Hz") == "frequency"
     assert narrow_kind("valve_dynamics", "time_constant_s") is None
@@ -208,6 +209,37 @@ class _WellEngine(FakeProfileEngine):
         return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
 
 
+class _BleedEngine(FakeProfileEngine):
+    """One window whose poppet SSE depends only on the bleed ε: a narrow well at ε = 1 (SSE 1) in a flat profile
+    (SSE 40): the grid, which holds ε at its default 0.1, cannot see it; the global stage's bleed starts can."""
+
+    problems = [fake_problem(np.ones(50))]
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None):
+        eps = eff["poppet_valve"]["bleed_fraction"]
+        sse = 40.0 - 39.0 * math.exp(-(math.log(eps) / 0.3) ** 2)
+        return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+
+def test_a_valves_bleed_is_held_on_the_grid_and_searched_by_the_global_stage():
+    """The four other poppet parameters are gridded (3 points each: 81 and no more), the bleed held at its default;
+    the global stage starts it at 0.1, 1 and 10 and the refinement ends in the well at 1."""
+    evaluated = []
+
+    class Counting(_BleedEngine):
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            evaluated.append(eff["poppet_valve"]["bleed_fraction"])
+            return super().evaluate(eff, flow, keep, idx)
+
+    fit = fit_joint(Counting(), [CandidateSpec("poppet_valve")], {}, {}, np.array([50.0]), np.array([50.0]),
+                    lambda e: None, lambda e: e)
+    assert fit.cost["grid"]["evaluations"] == 81
+    assert np.allclose(evaluated[:81], 0.1)
+    assert fit.cost["global"]["starts"] == 3
+    assert fit.effects["poppet_valve"]["bleed_fraction"] == pytest.approx(1.0, rel=0.05)
+    assert fit.j_pooled < 0.2  # sqrt(1 / 50) at the well, against sqrt(40 / 50) on the grid
+
+
 def _servo_fit(poles=()):
     return fit_joint(_WellEngine(), [CandidateSpec("command_displacement", poles=poles)], {}, {}, np.array([50.0]),
                      np.array([50.0]), lambda e: None, lambda e: e)
@@ -242,8 +274,8 @@ def test_global_starts_of_a_valve_from_poles_and_data():
     hi = np.array([math.log(p.upper) for p in ps])
     dp = np.abs(rng.normal(0.0, 8e5, 5000))
     base = 0.5 * (lo + hi)
-    starts, narrow = global_starts(flat, [0, 1, 2, 3], base, lo, hi, dp)
-    assert narrow == [0, 1, 2, 3]
+    starts, narrow = global_starts(flat, [0, 1, 2, 3, 4], base, lo, hi, dp)
+    assert narrow == [0, 1, 2, 3, 4]
     z = np.exp(np.array(starts))
     pairs = sorted({(round(a, 3), round(b, 3)) for a, b in z[:, :2]})
     assert pairs == [(1.41, 3.0), (1.75, 0.14)]  # (1.8, 0.15) merged into (1.75, 0.14); ζ 4.6 clipped to 3
@@ -252,7 +284,9 @@ def test_global_starts_of_a_valve_from_poles_and_data():
     assert len(cracks) <= 3 and round(3.4e5) in cracks and round(q[0]) in cracks
     top = float(np.quantile(dp, 0.99))
     assert sorted({round(s) for s in z[:, 3]}) == [round(top * 0.1), round(top), round(top * 10)]
-    assert len(starts) == 2 * len(cracks) * 3 <= 27
+    # the bleed: for each span start, the one that keeps a plateau at the top of |Δp| just stable (10: its box's top)
+    assert sorted({round(b, 6) for b in z[:, 4]}) == [0.1, 1.0, 10.0]
+    assert len(starts) == 2 * len(cracks) * 3 * 3 <= 81
     # no data, no poles: nothing to start from; a spec's own box (the generic effect's) is not a narrow axis
     bare = CandidateSpec("poppet_valve")
     assert global_starts([(bare, p) for p in ps], [0, 1, 2, 3], base, lo, hi, None) == ([], [0, 1, 2, 3])

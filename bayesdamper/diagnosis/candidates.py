@@ -19,11 +19,12 @@ one parameter is then refined by Brent's method, several by Levenberg-Marquardt 
 (:mod:`bayesdamper.diagnosis.inner_fit`).
 
 Global stage. Parameters whose profile has narrow basins — a natural frequency, a damping ratio, a threshold
-(cracking, opening) pressure and a pressure span (:func:`narrow_kind`, from the effect's parameter names and units)
-— are not left to one start: before the local refinement, starts built from the residual's signature and from the
-data (:func:`global_starts`: part 1's pole pairs, the pressure at the residual's onset, quantiles and the range of
-the transients' |Δp|) join the grid on the screening subset, and the best :data:`GLOBAL_REFINE` distinct starts
-are each refined; the best refinement is kept. A fit reports the parameters that end on a bound
+(cracking, opening) pressure, a pressure span and a valve's bleed (:func:`narrow_kind`, from the effect's parameter
+names and units) — are not left to one start: before the local refinement, starts built from the residual's
+signature and from the data (:func:`global_starts`: part 1's pole pairs, the pressure at the residual's onset,
+quantiles and the range of the transients' |Δp|) join the grid on the screening subset, and the best
+:data:`GLOBAL_REFINE` distinct starts are each refined (a bleed is held at its default on the grid and searched by
+these starts alone, :data:`GRID_HELD`); the best refinement is kept. A fit reports the parameters that end on a bound
 (:func:`bound_flags`): there the form does not fit the data as parametrised, and the value is not a result. The
 search's cost per stage (grid, global starts, refinement, intervals) is in :attr:`CandidateFit.cost` and
 accumulates over the process in :func:`search_cost`.
@@ -43,6 +44,7 @@ from bayesdamper.diagnosis.global_stage import (  # noqa: F401 - re-exported
     GLOBAL_LM_ITER,
     GLOBAL_REFINE,
     GLOBAL_SSE_RATIO,
+    GRID_HELD,
     THRESHOLD_QUANTILES,
     _distinct_best,
     _physical_limits,
@@ -66,6 +68,7 @@ from bayesdamper.diagnosis.spec import (  # noqa: F401 - re-exported: the search
     search_params,
 )
 from bayesdamper.inference.sampling import finite_difference_hessian
+from bayesdamper.physics.effects import EFFECTS
 
 #: Grid points of the outer search before local refinement: 6 for one new parameter, 4 per axis for two, 3 per
 #: axis for three or more (27 points: the local search refines from the best). A spec's ``starts`` add, for the
@@ -222,10 +225,13 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
 
     # starting point: given values, and a grid over the candidates without one
     z0 = np.zeros(len(flat))
-    grid_dims = []
+    grid_dims, held_dims = [], []
     for j, (spec, p) in enumerate(flat):
         if spec.label in start and p.name in start[spec.label]:
             z0[j] = np.clip(_transform(p, start[spec.label][p.name]), lo[j], hi[j])
+        elif narrow_kind(spec.effect, p.name) in GRID_HELD:  # the global stage searches it (GRID_HELD)
+            held_dims.append(j)
+            z0[j] = np.clip(_transform(p, EFFECTS[spec.effect].defaults()[p.name]), lo[j], hi[j])
         else:
             grid_dims.append(j)
             z0[j] = 0.5 * (lo[j] + hi[j])
@@ -304,7 +310,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                 times = [getattr(engine.problems[int(k)], "time", None) for k in rows]
                 return spectral_peaks(resid, times) if all(t is not None for t in times) else []
 
-            extra, narrow = global_starts(flat, grid_dims, best, lo, hi, data_pressures(engine), peaks)
+            extra, narrow = global_starts(flat, grid_dims + held_dims, best, lo, hi, data_pressures(engine), peaks)
             if narrow:
                 gvals = [grid_objective(z) for z in extra]
                 refine_from = _distinct_best(cands + extra, vals + gvals, narrow, lo, hi, GLOBAL_REFINE,

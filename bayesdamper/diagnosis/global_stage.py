@@ -43,9 +43,15 @@ GLOBAL_SSE_RATIO = 2.0
 #: Quantiles of the transients' |Δp| samples that start a threshold pressure (after part 1's onset).
 THRESHOLD_QUANTILES = (0.01, 0.1, 0.5)
 #: Multiples of the top of the |Δp| range (its 99th percentile) that start a pressure span: fully open within a
-#: tenth of the range, at its top, or a tenth open at its top (only the last keeps a poppet's plateaus stable:
-#: ε p_s > |Δp| + p_c).
+#: tenth of the range, at its top, or a tenth open at its top (at the poppet's default bleed ε 0.1 only the last keeps
+#: its plateaus stable, ε p_s > |Δp| + p_c; :data:`BLEED_STARTS` gives each span a bleed that does).
 SPAN_FACTORS = (0.1, 1.0, 10.0)
+#: Starts of a valve's bleed fraction ε: for each span start, the bleed that keeps a plateau at the top of the |Δp|
+#: range inside the span just stable (ε p_s = |Δp|: ε = 1 / the span factor).
+BLEED_STARTS = tuple(1.0 / f for f in SPAN_FACTORS)
+#: Kinds of narrow-basin parameter the coarse grid holds at the effect's default value: the global stage is their
+#: search (its own axis of starts), sparing the grid a factor of 3 per such axis.
+GRID_HELD = ("bleed",)
 #: Spectral peaks of the residual below this share of the largest's power are not starts (:func:`spectral_peaks`).
 PEAK_SHARE = 0.1
 #: Fraction of a parameter's search range (transformed coordinates) within which an estimate is on its bound.
@@ -57,9 +63,10 @@ def narrow_kind(effect: str, name: str) -> str | None:
 
     ``"frequency"``: unit Hz (a natural frequency, a bandwidth); ``"damping"``: a damping ratio (``damping_ratio``
     in the name); ``"threshold"``: a pressure [Pa] named a cracking, threshold or opening pressure; ``"span"``: a
-    pressure [Pa] named a span. These set where a valve or a second-order element opens or rings: off the optimum
-    by a fraction of their range, the model's transients change in kind (rings or not, opens or not), so a local
-    search from a coarse grid point ends in whichever basin the point lies in.
+    pressure [Pa] named a span; ``"bleed"``: a dimensionless parameter named a bleed (the share of a valve's flow
+    that passes it closed). These set where a valve or a second-order element opens or rings: off the optimum
+    by a fraction of their range, the model's transients change in kind (rings or not, opens or not, chatters or
+    not), so a local search from a coarse grid point ends in whichever basin the point lies in.
     """
     from bayesdamper.physics.effects import EFFECTS
 
@@ -70,6 +77,8 @@ def narrow_kind(effect: str, name: str) -> str | None:
         return "damping"
     if unit == "Hz" or low.endswith("_hz"):
         return "frequency"
+    if "bleed" in low and unit == "-":
+        return "bleed"
     if unit == "Pa" or low.endswith("_pa"):
         if "span" in low:
             return "span"
@@ -201,9 +210,10 @@ def global_starts(flat: list, dims: list[int], base: np.ndarray, lo: np.ndarray,
     (``spec.poles``; else the product of its frequency and damping ``starts``; else ``peaks()``, the residual's
     spectral peaks, :func:`spectral_peaks`) as one axis, either alone the same values of its own kind; a threshold
     pressure part 1's onsets (``spec.thresholds``) and the :data:`THRESHOLD_QUANTILES` of the data's |Δp|
-    (``dp``); a span the 99th percentile of |Δp| times :data:`SPAN_FACTORS`. Values are merged and capped per axis
-    (:func:`_axis_values`). The starts are the product over the axes with values, every other coordinate at
-    ``base`` (the grid's best point). Returns ``(starts, narrow)``.
+    (``dp``); a span the 99th percentile of |Δp| times :data:`SPAN_FACTORS`; a bleed :data:`BLEED_STARTS`. Values
+    are merged and capped per axis (:func:`_axis_values`). The starts are the product over the axes with values,
+    every other coordinate at ``base`` (the grid's best point; ``dims`` may hold coordinates the grid held,
+    :data:`GRID_HELD`). Returns ``(starts, narrow)``.
     """
     narrow = [j for j in dims if narrow_kind(flat[j][0].effect, flat[j][1].name)
               and flat[j][1].name not in flat[j][0].overrides]
@@ -238,6 +248,8 @@ def global_starts(flat: list, dims: list[int], base: np.ndarray, lo: np.ndarray,
         elif kind == "threshold":
             raw = list(spec.thresholds) + ([float(np.quantile(dp, q)) for q in THRESHOLD_QUANTILES]
                                            if dp is not None and dp.size else [])
+        elif kind == "bleed":
+            raw = list(BLEED_STARTS)
         else:  # span
             raw = [float(np.quantile(dp, 0.99)) * f for f in SPAN_FACTORS] if dp is not None and dp.size else []
         vals1 = _axis_values(p, raw, j, lo, hi)

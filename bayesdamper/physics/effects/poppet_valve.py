@@ -8,16 +8,19 @@ of the pressure difference::
 with natural frequency f_v = ω_v / 2π [Hz], damping ratio ζ_v, cracking pressure p_c [Pa] and the span
 p_s [Pa] over which the valve goes from closed to fully open. The path's flow is
 
-    Q = Q_O(Δp) (ε + clip(x, 0, 1)) / (ε + s(Δp)),    ε = ``BYPASS``
+    Q = Q_O(Δp) (ε + clip(x, 0, 1)) / (ε + s(Δp))
 
-so on every steady plateau (x = s) it is exactly eq. (8) and the static coefficients keep their meaning;
-after a step the lift lags and may ring (pressure pulses at the valve's frequency whose size grows
-with |Δp| beyond p_c). ε is the bleed path that stays open with the valve closed.
+with ε the bleed: the flow that passes the closed valve, as a fraction of the flow the fully open valve adds.
+On every steady plateau (x = s) it is exactly eq. (8), so the static coefficients keep their meaning; after a
+step the lift lags and may ring (pressure pulses at the valve's frequency whose size grows with |Δp| beyond
+p_c). A small ε makes the valve carry nearly all the flow, a large one makes it a small addition to a
+bleed orifice.
 
-At a fixed lift the flow falls as Δp opens s, so a plateau is statically stable only while the orifice
-flow grows faster than the opening, d ln Q_O/dΔp > d ln(ε + s)/dΔp; for a quadratic orifice this is
-ε p_s > |Δp| + p_c. Beyond it (and with little damping) the valve chatters in a limit cycle, as real
-check valves with a high opening gain do, and the plateaus never settle.
+At a fixed lift the flow falls as Δp opens s, so a plateau inside the span is statically stable only while
+the orifice flow grows faster than the opening, d ln Q_O/dΔp > d ln(ε + s)/dΔp; for a quadratic orifice this
+is ε p_s > |Δp| + p_c. Beyond it (and with little damping) the valve chatters in a limit cycle, as real check
+valves with a high opening gain do, and the plateaus never settle. A plateau above the span (the valve fully
+open, s = 1) is stable at any ε.
 """
 
 from __future__ import annotations
@@ -29,10 +32,8 @@ from numba import njit
 from bayesdamper.physics.effects.base import Effect, EffectParam
 from bayesdamper.physics.effects.signals import DP, Q
 
-__all__ = ["BYPASS", "EFFECT", "STATES", "flow", "initial", "state_atol", "steady_lift"]
+__all__ = ["EFFECT", "STATES", "flow", "initial", "state_atol", "steady_lift"]
 
-#: Bleed fraction ε of the fully open flow that passes the closed valve [-].
-BYPASS = 0.1
 #: States: lift x [-] and its rate [1/s].
 STATES = ("lift", "lift_rate_per_s")
 
@@ -49,8 +50,11 @@ EFFECT = Effect(
         # chatters for |Δp| + p_c > 0.1 MPa, i.e. on every rig-A plateau)
         EffectParam("span_Pa", "Pa", 1.0e5, 1.0e8, 3.0e7, True,
                     "pressure span p_s from cracking to fully open (off: inf, the valve never opens beyond the "
-                    "bleed, so Q = Q_O); the default keeps rig-A's plateaus stable (ε p_s = 3 MPa)",
+                    "bleed, so Q = Q_O); the defaults keep rig-A's plateaus stable (ε p_s = 3 MPa)",
                     off=math.inf, inf_ok=True),
+        EffectParam("bleed_fraction", "-", 1.0e-2, 10.0, 0.1, True,
+                    "bleed ε: the flow that passes the closed valve as a fraction of the flow the valve adds fully "
+                    "open (with the span off any ε > 0 gives Q = Q_O)", off=1.0),
     ),
 )
 
@@ -69,7 +73,7 @@ def flow(sig, z, p, dz):
     dz[0] = z[1]
     dz[1] = w * w * (s - z[0]) - 2.0 * p[1] * w * z[1]
     x = min(max(z[0], 0.0), 1.0)
-    return sig[Q] * (BYPASS + x) / (BYPASS + s)
+    return sig[Q] * (p[4] + x) / (p[4] + s)
 
 
 @njit(cache=True, error_model="numpy")
