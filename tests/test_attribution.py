@@ -9,6 +9,7 @@ import pytest
 from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, paired, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec
 from bayesdamper.diagnosis.loop import lovo_passes
+from bayesdamper.physics.effects import EFFECTS
 
 
 def test_folds_are_whole_speeds_dealt_round_robin():
@@ -191,10 +192,56 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
                for n, s in (("friction", -40.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
     for ts_score in (+203.0, -500.0):
         calls.clear()
-        ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state")
+        ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state",
+                             at_bound=[])
         out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None, Progress())
         screens = [c for c in calls if c[0] == "screen"]
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
         assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"),
                                            ("two_state", "backlash")]
+
+
+def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):
+    """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
+    alone, also from that fit's optimum; the better refinement is the option (a valve's screen point in a chattering
+    basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
+    The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum."""
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
+    pairs, starts_ts = [], []
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+        label = cands[-1].label
+        if grid_only:  # the screen on the two-state model: the valve's grid point lies at 6 Hz
+            return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 6.0}}, effect=label)
+        f = start[label]["f"]
+        pairs.append((label, f))
+        starts_ts.append(start["two_state"])
+        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0}[f]
+        return SimpleNamespace(labels=("two_state", label), delta_bic=score,
+                               effects={"two_state": {}, label: {"f": f}}, effect=f"two_state+{label}")
+
+    class Progress:
+        def __call__(self, msg):
+            pass
+
+        def advance(self):
+            pass
+
+    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    ts = SimpleNamespace(labels=("two_state",), delta_bic=+40.0, effects={"two_state": {"G": 1e-15}},
+                         effect="two_state", at_bound=[{"param": "G"}])
+    valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-600.0, effects={"poppet_valve": {"f": 1.8}},
+                            effect="poppet_valve")
+    leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
+    out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None, Progress())
+    assert sorted(pairs) == [("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0)]
+    best = {o.effect: o for o in out}
+    assert best["two_state+poppet_valve"].delta_bic == -1100.0  # from the valve's own optimum
+    assert best["two_state+leakage"].delta_bic == -100.0
+    # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults
+    own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
+    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: r[0])
+    assert got == [(("leakage", 6.0), own), (("poppet_valve", 1.8), defaults), (("poppet_valve", 6.0), own)]

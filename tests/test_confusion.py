@@ -93,6 +93,12 @@ TWO_STATE_CASES = {
     "two-state + check valve 2 Hz": (two_state_base(1.25, "gas-b"),
                                      {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5,
                                                        "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7}}, 1.25),
+    # a lightly damped valve with a large bleed that opens fully within a fraction of the plateaus' |Δp| (the kind of
+    # valve rig-A's residual points to), on another gas and rate than rig-A
+    "two-state + open valve 1.8 Hz": (two_state_base(1.1, "gas-a"),
+                                      {"poppet_valve": {"natural_frequency_Hz": 1.8, "damping_ratio": 0.2,
+                                                        "cracking_pressure_Pa": 6.0e4, "span_Pa": 4.0e5,
+                                                        "bleed_fraction": 1.5}}, 1.25),
 }
 #: The two-state cases may name the library's two-state physics besides the injected family, and nothing else.
 TWO_STATE_FAMILY = "two-state physics"

@@ -33,6 +33,7 @@ from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit
 from bayesdamper.diagnosis.findings import findings_text
 from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
 from bayesdamper.diagnosis.unnamed import effect_reading
+from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
@@ -355,7 +356,12 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
     missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
-    ΔBIC_eff are fitted jointly with it, every parameter free. Returns those joint fits (options like any pair).
+    ΔBIC_eff are fitted jointly with it, every parameter free: from the screen's point with the two-state model as
+    fitted alone (the point was screened there) and, for a candidate that improved on eq. (7) alone, also from its
+    own optimum there with the two-state model at the registry's defaults (neither was fitted with the other). The
+    better fit is the option: a valve's profile has several basins, and the screen's coarse grid may start it in the
+    wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is flat.
+    Returns those joint fits (options like any pair).
 
     The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
     fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
@@ -379,9 +385,15 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         if frozenset(pair) in have:
             continue
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
-        st = {pair[0]: ts.effects[TWO_STATE], pair[1]: c.effects[specs[pair[1]].effect]}
-        out.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]], st, {}, current_sse, n_eff, flow_for,
-                             effect_argument, new=pair, intervals_to=NO_INTERVALS))
+        eff = specs[pair[1]].effect
+        starts = [(held[TWO_STATE], c.effects[eff])]
+        alone = next((f for f in fits if f.labels == (pair[1],) and f.delta_bic < 0), None)
+        if alone is not None:  # its own optimum on eq. (7) too: the screen's grid point may lie in another basin
+            starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
+        tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]], {pair[0]: v_ts, pair[1]: v},
+                           {}, current_sse, n_eff, flow_for, effect_argument, new=pair, intervals_to=NO_INTERVALS)
+                 for v_ts, v in starts]
+        out.append(min(tried, key=lambda f: f.delta_bic))
     return out
 
 
