@@ -46,8 +46,8 @@ EFFECT = Effect(
         EffectParam("damping_ratio", "-", 0.02, 3.0, 0.5, True, "damping ratio ζ_v of the poppet"),
         EffectParam("cracking_pressure_Pa", "Pa", 1.0e3, 3.0e6, 2.0e5, True,
                     "pressure difference p_c at which the valve starts to open"),
-        # searched with the others: at a fixed span the search would mostly try chattering valves (a span of 1 MPa
-        # chatters for |Δp| + p_c > 0.1 MPa, i.e. on every rig-A plateau)
+        # searched with the others: at a fixed span the search would mostly try chattering valves (at the default
+        # bleed a span of 1 MPa chatters for |Δp| + p_c > 0.1 MPa, i.e. on every rig-A plateau)
         EffectParam("span_Pa", "Pa", 1.0e5, 1.0e8, 3.0e7, True,
                     "pressure span p_s from cracking to fully open (off: inf, the valve never opens beyond the "
                     "bleed, so Q = Q_O); the defaults keep rig-A's plateaus stable (ε p_s = 3 MPa)",
