@@ -164,6 +164,16 @@ def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sampl
     assert best["effect"] == "two_state"
 
 
+class _QuietProgress:
+    """The loop's progress callback, silent."""
+
+    def __call__(self, msg):
+        pass
+
+    def advance(self):
+        pass
+
+
 def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeypatch):
     """Every other candidate is screened on the two-state model held at its values, and the pairs are the best of
     that screen, even when the two-state model alone fits worse than the current model (a masked effect: a compliant
@@ -180,13 +190,6 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         return SimpleNamespace(labels=tuple(c.label for c in cands), delta_bic=score,
                                effects={c.effect: {} for c in cands}, effect="+".join(c.label for c in cands))
 
-    class Progress:
-        def __call__(self, msg):
-            pass
-
-        def advance(self):
-            pass
-
     monkeypatch.setattr(loop, "fit_joint", fake_fit)
     singles = [SimpleNamespace(labels=(n,), delta_bic=s, effects={n: {}}, effect=n)
                for n, s in (("friction", -40.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
@@ -194,7 +197,8 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         calls.clear()
         ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state",
                              at_bound=[])
-        out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None, Progress())
+        out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                   _QuietProgress())
         screens = [c for c in calls if c[0] == "screen"]
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
@@ -223,20 +227,14 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
         return SimpleNamespace(labels=("two_state", label), delta_bic=score,
                                effects={"two_state": {}, label: {"f": f}}, effect=f"two_state+{label}")
 
-    class Progress:
-        def __call__(self, msg):
-            pass
-
-        def advance(self):
-            pass
-
     monkeypatch.setattr(loop, "fit_joint", fake_fit)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=+40.0, effects={"two_state": {"G": 1e-15}},
                          effect="two_state", at_bound=[{"param": "G"}])
     valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-600.0, effects={"poppet_valve": {"f": 1.8}},
                             effect="poppet_valve")
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
-    out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None, Progress())
+    out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
+                               _QuietProgress())
     assert sorted(pairs) == [("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0)]
     best = {o.effect: o for o in out}
     assert best["two_state+poppet_valve"].delta_bic == -1100.0  # from the valve's own optimum

@@ -52,8 +52,6 @@ NO_INTERVALS = -math.inf
 
 def report_text(d: dict) -> str:
     """A short plain-text account of what the diagnosis found."""
-    from bayesdamper.physics.effects import EFFECTS
-
     s = d["structure_before"]["summary"]
     lines = [f"Diagnosis of {d['dataset']!r}: plateau noise {d['noise_N']:.1f} N.",
              f"Baseline eq. (7): pooled J = {d['baseline']['J_pooled']:.4f}; {s['n_structured']} of "
