@@ -10,6 +10,7 @@ from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, paired, velo
 from bayesdamper.diagnosis.candidates import CandidateSpec
 from bayesdamper.diagnosis.loop import lovo_passes
 from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.run.progress import Progress
 
 
 def test_folds_are_whole_speeds_dealt_round_robin():
@@ -164,16 +165,6 @@ def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sampl
     assert best["effect"] == "two_state"
 
 
-class _QuietProgress:
-    """The loop's progress callback, silent."""
-
-    def __call__(self, msg):
-        pass
-
-    def advance(self):
-        pass
-
-
 def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeypatch):
     """Every other candidate is screened on the two-state model held at its values, and the pairs are the best of
     that screen, even when the two-state model alone fits worse than the current model (a masked effect: a compliant
@@ -198,7 +189,7 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state",
                              at_bound=[])
         out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
-                                   _QuietProgress())
+                                   Progress(False))
         screens = [c for c in calls if c[0] == "screen"]
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
@@ -234,7 +225,7 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
                             effect="poppet_valve")
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
     out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
-                               _QuietProgress())
+                               Progress(False))
     assert sorted(pairs) == [("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0)]
     best = {o.effect: o for o in out}
     assert best["two_state+poppet_valve"].delta_bic == -1100.0  # from the valve's own optimum
