@@ -201,7 +201,9 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
     alone, also from that fit's optimum; the better refinement is the option (a valve's screen point in a chattering
     basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
-    The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum."""
+    The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum,
+    and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point: the leak's pair is
+    best from there."""
     import bayesdamper.diagnosis.loop as loop
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
@@ -214,7 +216,8 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
         f = start[label]["f"]
         pairs.append((label, f))
         starts_ts.append(start["two_state"])
-        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0}[f]
+        refilling = start["two_state"].get(loop.REFILL) == loop.REFILL_START
+        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0}[f] - (200.0 if refilling and label == "leakage" else 0.0)
         return SimpleNamespace(labels=("two_state", label), delta_bic=score,
                                effects={"two_state": {}, label: {"f": f}}, effect=f"two_state+{label}")
 
@@ -226,11 +229,15 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
     out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
                                Progress(False))
-    assert sorted(pairs) == [("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0)]
+    assert sorted(pairs) == [("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0),
+                             ("poppet_valve", 6.0)]
     best = {o.effect: o for o in out}
     assert best["two_state+poppet_valve"].delta_bic == -1100.0  # from the valve's own optimum
-    assert best["two_state+leakage"].delta_bic == -100.0
-    # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults
+    assert best["two_state+leakage"].delta_bic == -300.0  # from the refilling start
+    # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults,
+    # the screen's point with the two-state model as fitted alone but refilling
     own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
-    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: r[0])
-    assert got == [(("leakage", 6.0), own), (("poppet_valve", 1.8), defaults), (("poppet_valve", 6.0), own)]
+    refilling = {**own, loop.REFILL: loop.REFILL_START}
+    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (r[0], sorted(r[1])))
+    assert got == [(("leakage", 6.0), own), (("leakage", 6.0), refilling), (("poppet_valve", 1.8), defaults),
+                   (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]

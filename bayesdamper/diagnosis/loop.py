@@ -150,6 +150,10 @@ def report_text(d: dict) -> str:
 
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
 PAIR_FROM = 3
+#: The two-state model's refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start
+#: (:func:`two_state_pairs`): a decade below the top of its search range, inside the basin where the accumulator
+#: refills.
+REFILL, REFILL_START = "refill_conductance_m3_per_s_Pa", 1e-9
 #: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
 PHYSICAL_RIVALS = 2
 #: The generic effect (dynamics no named effect holds) and the two-state physics the loop checks first.
@@ -388,6 +392,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         alone = next((f for f in fits if f.labels == (pair[1],) and f.delta_bic < 0), None)
         if alone is not None:  # its own optimum on eq. (7) too: the screen's grid point may lie in another basin
             starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
+        # and the screen's point with the accumulator refilling: the pair's profile in the refill conductance can be
+        # bimodal, flat where refill is off and a basin where it refills (rig-A), which a refinement from the flat
+        # part does not reach
+        starts.append(({**held[TWO_STATE], REFILL: REFILL_START}, c.effects[eff]))
         tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]], {pair[0]: v_ts, pair[1]: v},
                            {}, current_sse, n_eff, flow_for, effect_argument, new=pair, intervals_to=NO_INTERVALS)
                  for v_ts, v in starts]
