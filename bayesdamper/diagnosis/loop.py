@@ -150,14 +150,15 @@ def report_text(d: dict) -> str:
 
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
 PAIR_FROM = 3
-#: The two-state model's refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start
-#: (:func:`two_state_pairs`): a decade below the top of its search range, inside the basin where the accumulator
-#: refills.
-REFILL, REFILL_START = "refill_conductance_m3_per_s_Pa", 1e-9
 #: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
 PHYSICAL_RIVALS = 2
 #: The generic effect (dynamics no named effect holds) and the two-state physics the loop checks first.
 GENERIC, TWO_STATE = "unnamed_dynamics", "two_state"
+#: The two-state model's refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start
+#: (:func:`two_state_pairs`): a decade below the top of the effect's own range, inside the basin where the
+#: accumulator refills.
+REFILL = "refill_conductance_m3_per_s_Pa"
+REFILL_START = EFFECTS[TWO_STATE].param(REFILL).upper / 10
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
 LOVO_OPTIONS = 3
 #: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality) ...
