@@ -306,7 +306,7 @@ def test_ridge_proposal_is_a_normalised_density_and_draws_from_it():
     coordinate against those of the density on the grid; 40 000 draws: Monte Carlo sd < 0.01), and its crest follows
     the ridge across the 3 units of x between the start and the mass (crest points within 0.005 of g inside
     the box)."""
-    from bayesdamper.inference.sampling import ridge_proposal
+    from bayesdamper.inference.proposals import ridge_proposal
 
     rng = np.random.default_rng(2)
     x = 1.2 + 0.05 * rng.standard_normal((3, 50, 12))
