@@ -241,3 +241,40 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (r[0], sorted(r[1])))
     assert got == [(("leakage", 6.0), own), (("leakage", 6.0), refilling), (("poppet_valve", 1.8), defaults),
                    (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]
+
+
+def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_the_pair_starts(monkeypatch):
+    """Where the two-state model and a candidate are both among the round's best singles, their pair is fitted first
+    from the members' own optima (the two-state model at no refill, its flat part); the two-state pairs fit it from
+    their starts as well, and the best of all stands for the pair in the round's list (replaced, not duplicated).
+    A pair whose earlier fit is better than every start keeps that fit."""
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+        label = cands[-1].label
+        if grid_only:
+            return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 2.0}}, effect=label)
+        refilling = start["two_state"].get(loop.REFILL) == loop.REFILL_START
+        score = {"poppet_valve": -2500.0 if refilling else -900.0, "leakage": -100.0}[label]
+        return SimpleNamespace(labels=("two_state", label), delta_bic=score, effects={"two_state": {}, label: {}},
+                               effect=f"two_state+{label}")
+
+    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    ts = SimpleNamespace(labels=("two_state",), delta_bic=-30.0, effects={"two_state": {"G": 1e-15}},
+                         effect="two_state")
+    valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-1000.0, effects={"poppet_valve": {"f": 2.0}},
+                            effect="poppet_valve")
+    leak = SimpleNamespace(labels=("leakage",), delta_bic=-20.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
+    earlier_valve = SimpleNamespace(labels=("poppet_valve", "two_state"), delta_bic=-970.0, effects={},
+                                    effect="poppet_valve+two_state")
+    earlier_leak = SimpleNamespace(labels=("two_state", "leakage"), delta_bic=-400.0, effects={},
+                                   effect="two_state+leakage")
+    fits = [ts, valve, leak, earlier_valve, earlier_leak]
+    out = loop.two_state_pairs(None, fits, specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    assert out == []  # both pairs were in the list already: nothing added
+    pairs = [f for f in fits if len(f.labels) == 2]
+    assert len(pairs) == 2
+    assert {f.effect: f.delta_bic for f in pairs} == {"two_state+poppet_valve": -2500.0, "two_state+leakage": -400.0}
+    assert earlier_leak in fits and earlier_valve not in fits

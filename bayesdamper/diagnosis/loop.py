@@ -364,7 +364,9 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     own optimum there with the two-state model at the registry's defaults (neither was fitted with the other). The
     better fit is the option: a valve's profile has several basins, and the screen's coarse grid may start it in the
     wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is flat.
-    Returns those joint fits (options like any pair).
+    Returns those joint fits (options like any pair). A pair the round has already fitted from its members' own
+    optima (both among its best singles) is fitted from these starts too, and the best of all its fits replaces it
+    in ``fits``: the members' optima can lie in the refill's flat part, which the refilling start leaves.
 
     The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
     fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
@@ -381,12 +383,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
                                   grid_only=True))
         progress.advance()
-    have = {frozenset(c.labels) for c in fits if len(c.labels) == 2}
+    have = {frozenset(c.labels): c for c in fits if len(c.labels) == 2}
     out = []
     for c in sorted(screened, key=lambda c: c.delta_bic)[:PAIR_FROM]:
         pair = (ts.labels[0], c.labels[0])
-        if frozenset(pair) in have:
-            continue
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
         eff = specs[pair[1]].effect
         starts = [(held[TWO_STATE], c.effects[eff])]
@@ -400,7 +400,12 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]], {pair[0]: v_ts, pair[1]: v},
                            {}, current_sse, n_eff, flow_for, effect_argument, new=pair, intervals_to=NO_INTERVALS)
                  for v_ts, v in starts]
-        out.append(min(tried, key=lambda f: f.delta_bic))
+        earlier = have.get(frozenset(pair))
+        best = min(tried + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
+        if earlier is None:
+            out.append(best)
+        else:  # the pair of the round's best singles, fitted from their own optima: the better fit stands for it
+            fits[fits.index(earlier)] = best
     return out
 
 
