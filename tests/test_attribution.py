@@ -202,8 +202,9 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     alone, also from that fit's optimum; the better refinement is the option (a valve's screen point in a chattering
     basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
     The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum,
-    and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point: the leak's pair is
-    best from there."""
+    and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point (the leak's pair is
+    best from there) and with the candidate searched afresh, without a start (the valve's pair is best from there:
+    the refilling model's best valve lies in another basin than the screen's)."""
     import bayesdamper.diagnosis.loop as loop
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
@@ -213,11 +214,14 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
         label = cands[-1].label
         if grid_only:  # the screen on the two-state model: the valve's grid point lies at 6 Hz
             return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 6.0}}, effect=label)
-        f = start[label]["f"]
+        f = start[label]["f"] if label in start else None  # None: searched afresh
         pairs.append((label, f))
         starts_ts.append(start["two_state"])
         refilling = start["two_state"].get(loop.REFILL) == loop.REFILL_START
-        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0}[f] - (200.0 if refilling and label == "leakage" else 0.0)
+        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0, None: -50.0}[f] - (200.0 if refilling and label == "leakage"
+                                                                         else 0.0)
+        if f is None and label == "poppet_valve":
+            score = -2500.0
         return SimpleNamespace(labels=("two_state", label), delta_bic=score,
                                effects={"two_state": {}, label: {"f": f}}, effect=f"two_state+{label}")
 
@@ -229,17 +233,19 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
     out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
                                Progress(False))
-    assert sorted(pairs) == [("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", 1.8), ("poppet_valve", 6.0),
-                             ("poppet_valve", 6.0)]
+    key = lambda r: (r[0], -1.0 if r[1] is None else r[1])  # noqa: E731
+    assert sorted(pairs, key=key) == [("leakage", None), ("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", None),
+                                      ("poppet_valve", 1.8), ("poppet_valve", 6.0), ("poppet_valve", 6.0)]
     best = {o.effect: o for o in out}
-    assert best["two_state+poppet_valve"].delta_bic == -1100.0  # from the valve's own optimum
-    assert best["two_state+leakage"].delta_bic == -300.0  # from the refilling start
+    assert best["two_state+poppet_valve"].delta_bic == -2500.0  # searched afresh on the refilling model
+    assert best["two_state+leakage"].delta_bic == -300.0  # from the refilling start at the screen's point
     # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults,
     # the screen's point with the two-state model as fitted alone but refilling
     own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
     refilling = {**own, loop.REFILL: loop.REFILL_START}
-    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (r[0], sorted(r[1])))
-    assert got == [(("leakage", 6.0), own), (("leakage", 6.0), refilling), (("poppet_valve", 1.8), defaults),
+    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (key(r[0]), sorted(r[1])))
+    assert got == [(("leakage", None), refilling), (("leakage", 6.0), own), (("leakage", 6.0), refilling),
+                   (("poppet_valve", None), refilling), (("poppet_valve", 1.8), defaults),
                    (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]
 
 

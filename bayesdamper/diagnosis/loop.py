@@ -360,10 +360,13 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
     ΔBIC_eff are fitted jointly with it, every parameter free: from the screen's point with the two-state model as
-    fitted alone (the point was screened there) and, for a candidate that improved on eq. (7) alone, also from its
-    own optimum there with the two-state model at the registry's defaults (neither was fitted with the other). The
-    better fit is the option: a valve's profile has several basins, and the screen's coarse grid may start it in the
-    wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is flat.
+    fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone, also from its
+    own optimum there with the two-state model at the registry's defaults (neither was fitted with the other); and
+    with the two-state model refilling (:data:`REFILL_START`), from the screen's point and with the candidate
+    searched afresh on the refilling model (its grid and global stage, no start). The best fit is the option: a
+    valve's profile has several basins, and the screen's coarse grid may start it in the wrong one; a two-state model
+    that fits badly alone ends at no refill, where the refill's profile is flat, and the valve that best fits the
+    refilling model can lie in another basin than the one the screen found on the model without refill.
     Returns those joint fits (options like any pair). A pair the round has already fitted from its members' own
     optima (both among its best singles) is fitted from these starts too, and the best of all its fits replaces it
     in ``fits``: the members' optima can lie in the refill's flat part, which the refilling start leaves.
@@ -393,11 +396,14 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         alone = next((f for f in fits if f.labels == (pair[1],) and f.delta_bic < 0), None)
         if alone is not None:  # its own optimum on eq. (7) too: the screen's grid point may lie in another basin
             starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
-        # and the screen's point with the accumulator refilling: the pair's profile in the refill conductance can be
-        # bimodal, flat where refill is off and a basin where it refills (rig-A), which a refinement from the flat
-        # part does not reach
-        starts.append(({**held[TWO_STATE], REFILL: REFILL_START}, c.effects[eff]))
-        tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]], {pair[0]: v_ts, pair[1]: v},
+        # and with the accumulator refilling: the pair's profile in the refill conductance can be bimodal, flat where
+        # refill is off and a basin where it refills (rig-A), which a refinement from the flat part does not reach;
+        # from the screen's point, and with the candidate searched afresh (grid, global stage) on the refilling
+        # model, whose best valve can lie in another basin than the one screened on the model without refill
+        refilling = {**held[TWO_STATE], REFILL: REFILL_START}
+        starts += [(refilling, c.effects[eff]), (refilling, None)]
+        tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
+                           {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
                            {}, current_sse, n_eff, flow_for, effect_argument, new=pair, intervals_to=NO_INTERVALS)
                  for v_ts, v in starts]
         earlier = have.get(frozenset(pair))
