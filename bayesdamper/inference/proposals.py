@@ -22,8 +22,9 @@ import numpy as np
 
 __all__ = ["INDEPENDENCE_DOF", "INDEPENDENCE_INFLATION", "INDEPENDENCE_SHARE", "PILOT_BURN", "PILOT_STEPS",
            "PILOT_TRIALS", "RIDGE_DEFENSIVE", "RIDGE_DROP", "RIDGE_MAX_POINTS", "RIDGE_RESTART_DRAWS",
-           "RIDGE_STEP_NATS", "LaplaceIndependenceMove", "RidgeIndependenceMove", "choose_pilot_proposal",
-           "independence_acceptance", "pilot_proposal", "ridge_proposal", "ridge_restart"]
+           "RIDGE_STEP_NATS", "RIDGE_WIDTH_DROP", "RIDGE_WIDTH_TRIES", "LaplaceIndependenceMove",
+           "RidgeIndependenceMove", "choose_pilot_proposal", "independence_acceptance", "pilot_proposal",
+           "ridge_proposal", "ridge_restart"]
 
 #: Share of the independence move in ``"de+laplace"``; the rest is ``"de"`` in its own proportions (so that
 #: a poor approximation still leaves a working ridge-following move). Chosen on a benchmark record (a 1 kHz
@@ -132,6 +133,9 @@ RIDGE_DROP = 20.0
 #: [nats]: a step that changes it more is halved and taken again, one that changes it by less than a fifth of this
 #: makes the next step half as long again, so the log-linear interpolation between points is never off by much more.
 RIDGE_STEP_NATS = 1.0
+#: Mean drop of the log-density [nats] across the crest over which its width is measured (a quarter to four nats:
+#: inside the Gaussian core, above a solver's noise), and the rescalings of the step tried to get there.
+RIDGE_WIDTH_DROP, RIDGE_WIDTH_TRIES = (0.25, 4.0), 6
 #: Crest points per direction of the walk (a bound on its cost: some 15-20 evaluations each).
 RIDGE_MAX_POINTS = 150
 #: Share of the ridge proposal's axis density that is uniform over the prior box's extent along the axis: every
@@ -265,6 +269,7 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
     def crest(a: float, guess: float, width: float) -> tuple[float, float, float]:
         """(b, log-density, width) of the crest across the axis at ``a``."""
         lo, hi = guess - 4.0 * width, guess + 4.0 * width
+
         def cost(b: float) -> float:
             v = lp(a, b)
             return -v if np.isfinite(v) else 1e300
@@ -278,9 +283,20 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
         top = lp(a, b)
         if not np.isfinite(top):
             return b, -np.inf, width
-        h = 0.5 * width
-        curv = -(lp(a, b + h) - 2.0 * top + lp(a, b - h)) / (h * h)
-        return b, top, (1.0 / np.sqrt(curv) if np.isfinite(curv) and curv > 0 else width)
+        # the width from the mean drop d over ±h, w = h / sqrt(2 d) for a Gaussian cross-section, with h scaled by 4
+        # until d lies in RIDGE_WIDTH_DROP: a step far inside the crest measures the solver's noise (widths that
+        # collapse step by step and lose the crest), one far outside it the tails
+        h, w = width, width
+        for _ in range(RIDGE_WIDTH_TRIES):
+            drop = top - 0.5 * (lp(a, b + h) + lp(a, b - h))
+            if not np.isfinite(drop) or drop > RIDGE_WIDTH_DROP[1]:
+                h /= 4.0
+            elif drop < RIDGE_WIDTH_DROP[0]:
+                h *= 4.0
+            else:
+                w = h / math.sqrt(2.0 * drop)
+                break
+        return b, top, w
 
     best = flat[int(np.argmax(lps))] - centre
     b0, top0, w0 = crest(float(best @ axes[:, 0]), float(best @ axes[:, 1]), sd_across)
