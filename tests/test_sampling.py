@@ -299,6 +299,18 @@ def _thin_ridge_x_quantiles(qs):
 RIDGE_BOX = (np.array([0.5, 6.9]), np.array([8.5, 16.1]))
 
 
+def _ridge_from_far_end(logp):
+    """:func:`ridge_proposal` of ``logp`` from a pilot-like cloud on the thin ridge at its far end (x near 1.2)."""
+    from bayesdamper.inference.proposals import ridge_proposal
+
+    rng = np.random.default_rng(2)
+    x = 1.2 + 0.05 * rng.standard_normal((3, 50, 12))
+    y = 16.6 - 0.47 * x - 0.106 * x * x + 0.005 * rng.standard_normal(x.shape)
+    chains = np.stack([x, y], axis=-1)
+    lps = np.array([logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
+    return ridge_proposal(logp, chains, lps, *RIDGE_BOX)
+
+
 def test_ridge_proposal_is_a_normalised_density_and_draws_from_it():
     """The ridge proposal built on the thin ridge from a pilot-like cloud at its far end: its density integrates to
     one over the plane (a Riemann sum on a grid that resolves the 0.005-wide crest: error < 1 %; the t tails beyond
@@ -306,14 +318,7 @@ def test_ridge_proposal_is_a_normalised_density_and_draws_from_it():
     coordinate against those of the density on the grid; 40 000 draws: Monte Carlo sd < 0.01), and its crest follows
     the ridge across the 3 units of x between the start and the mass (crest points within 0.005 of g inside
     the box)."""
-    from bayesdamper.inference.proposals import ridge_proposal
-
-    rng = np.random.default_rng(2)
-    x = 1.2 + 0.05 * rng.standard_normal((3, 50, 12))
-    y = 16.6 - 0.47 * x - 0.106 * x * x + 0.005 * rng.standard_normal(x.shape)
-    chains = np.stack([x, y], axis=-1)
-    lps = np.array([_thin_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
-    move, n_eval = ridge_proposal(_thin_ridge_logp, chains, lps, *RIDGE_BOX)
+    move, n_eval = _ridge_from_far_end(_thin_ridge_logp)
     assert move is not None and n_eval > 0
     pts = move.centre + np.outer(move.a, move.axes[:, 0]) + np.outer(move.crest, move.axes[:, 1])
     g = 16.6 - 0.47 * pts[:, 0] - 0.106 * pts[:, 0] ** 2
@@ -371,14 +376,9 @@ def test_ridge_crest_and_widths_survive_a_solvers_noise():
     """The crest's width is measured from a drop of a quarter to four nats, not from the curvature at a step below
     the noise: on the noisy ridge every crest point's width is within a factor 2 of the ridge's own (0.005 in y, seen
     across the walk's axis at its angle), and the crest stays within 0.005 of g from the pilot's end past the mass."""
-    from bayesdamper.inference.proposals import INDEPENDENCE_INFLATION, ridge_proposal
+    from bayesdamper.inference.proposals import INDEPENDENCE_INFLATION
 
-    rng = np.random.default_rng(2)
-    x = 1.2 + 0.05 * rng.standard_normal((3, 50, 12))
-    y = 16.6 - 0.47 * x - 0.106 * x * x + 0.005 * rng.standard_normal(x.shape)
-    chains = np.stack([x, y], axis=-1)
-    lps = np.array([_noisy_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
-    move, _ = ridge_proposal(_noisy_ridge_logp, chains, lps, *RIDGE_BOX)
+    move, _ = _ridge_from_far_end(_noisy_ridge_logp)
     pts = move.centre + np.outer(move.a, move.axes[:, 0]) + np.outer(move.crest, move.axes[:, 1])
     inside = (pts[:, 1] < 16.09) & (pts[:, 0] < 3.8)
     g = 16.6 - 0.47 * pts[:, 0] - 0.106 * pts[:, 0] ** 2

@@ -23,7 +23,7 @@ import numpy as np
 __all__ = ["INDEPENDENCE_DOF", "INDEPENDENCE_INFLATION", "INDEPENDENCE_SHARE", "PILOT_BURN", "PILOT_STEPS",
            "PILOT_TRIALS", "RIDGE_DEFENSIVE", "RIDGE_DROP", "RIDGE_MAX_POINTS", "RIDGE_RESTART_DRAWS",
            "RIDGE_STEP_NATS", "RIDGE_WIDTH_DROP", "RIDGE_WIDTH_TRIES", "LaplaceIndependenceMove",
-           "RidgeIndependenceMove", "choose_pilot_proposal", "independence_acceptance", "pilot_proposal",
+           "RidgeIndependenceMove", "choose_pilot_proposal", "evaluate", "independence_acceptance", "pilot_proposal",
            "ridge_proposal", "ridge_restart"]
 
 #: Share of the independence move in ``"de+laplace"``; the rest is ``"de"`` in its own proportions (so that
@@ -77,6 +77,11 @@ class LaplaceIndependenceMove:
         return q, self.log_density(coords) - self.log_density(q)
 
 
+def evaluate(log_prob, x: np.ndarray) -> np.ndarray:
+    """``log_prob`` at the rows of ``x``: one ``log_prob.batch`` call where there is one, else row by row."""
+    return np.asarray(log_prob.batch(x) if hasattr(log_prob, "batch") else [log_prob(z) for z in x], dtype=float)
+
+
 #: Steps of the discarded pilot run of ``"de+pilot"``, and the share of them discarded before its covariance is
 #: estimated (its own burn-in).
 PILOT_STEPS, PILOT_BURN = 100, 0.5
@@ -88,8 +93,8 @@ def pilot_proposal(chains: np.ndarray) -> LaplaceIndependenceMove | None:
     Centre and covariance are the median and covariance of the pilot's second half over all ensembles and
     walkers. The pilot is discarded and the proposal then held fixed, so the chain that follows is exact
     (adaptation in the warm-up only, as Stan's); a poor estimate costs efficiency, not correctness. None if the
-    covariance is not positive definite (the run continues with plain DE). :func:`sample_posterior` also drops it
-    when its proposals are accepted less often than the pilot's DE moves (:func:`independence_acceptance`): on a
+    covariance is not positive definite (the run continues with plain DE). :func:`choose_pilot_proposal` also drops
+    it when its proposals are accepted less often than the pilot's DE moves (:func:`independence_acceptance`): on a
     curved ridge a Gaussian proposal is mostly rejected, and its share of the moves would slow DE down. Otherwise
     the independence moves are chosen with the probability that they are accepted (at most
     :data:`INDEPENDENCE_SHARE`), so a proposal that covers only part of the target leaves DE the other steps.
@@ -118,12 +123,10 @@ def independence_acceptance(log_prob, move: LaplaceIndependenceMove, current: np
     pick = rng.choice(current.shape[0], size=min(PILOT_TRIALS, current.shape[0]), replace=False)
     x, lp_x = current[pick], current_lp[pick]
     q = move.draw(pick.size, np.random.RandomState(rng.integers(2**32 - 1)))
-    lp_q = np.asarray(log_prob.batch(q) if hasattr(log_prob, "batch") else [log_prob(z) for z in q], dtype=float)
+    lp_q = evaluate(log_prob, q)
     with np.errstate(invalid="ignore", over="ignore"):
         log_r = lp_q - lp_x + move.log_density(x) - move.log_density(q)
     return float(np.mean(np.where(np.isfinite(log_r), np.exp(np.minimum(log_r, 0.0)), 0.0)))
-
-
 
 
 #: The ridge proposal's walk along its axis stops where the crest's log-density has fallen this far below the best
@@ -154,7 +157,7 @@ class RidgeIndependenceMove:
         g(a, b) = [(1 − ε) r(a) + ε / (A_hi − A_lo)] · t_ν(b; c(a), s(a) · inflation)
 
     with ``(a_k, c_k, s_k, L_k)`` crest points of the target found by :func:`ridge_proposal` (c_k the crest's b at
-    a_k, L_k the log-density there, s_k the curvature width across it), r the density along the axis that is
+    a_k, L_k the log-density there, s_k the width across it), r the density along the axis that is
     log-linear between crest points with log-weights L_k + log s_k (the Laplace marginal), c and s interpolated
     linearly (held at the ends' values beyond them), and [A_lo, A_hi] the prior box's extent along the axis
     (ε = :data:`RIDGE_DEFENSIVE`). Held fixed once built, so the chain is exact whatever the crest points' quality.
@@ -231,7 +234,8 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
     ``chains`` (n_ensembles, n_steps, n_walkers, 2) and their log-densities ``chain_lp`` are the pilot's second half.
     The pilot gives the ridge's axis (its principal axes) and its best point; from there the crest is followed
     along the axis in both directions: at each step the target is maximised across the axis (bounded Brent, from
-    the crest's extrapolated position) and its curvature there gives the width. Steps adapt to the crest's change
+    the crest's extrapolated position) and the drop over a step across it gives the width (:data:`RIDGE_WIDTH_DROP`).
+    Steps adapt to the crest's change
     (:data:`RIDGE_STEP_NATS`); the walk ends :data:`RIDGE_DROP` nats below the best crest point, at the prior box or
     at a failed solve. Lobes along the ridge that the pilot never reached are found this way, and the proposal puts
     their Laplace mass there. None (and the evaluations spent) for another dimension, a degenerate pilot or a
@@ -353,7 +357,7 @@ def ridge_restart(log_prob, move: RidgeIndependenceMove, n_ensembles: int, n_wal
     starts, cur, cur_lp = [], [], []
     for _ in range(n_ensembles):
         q = move.draw(RIDGE_RESTART_DRAWS, np.random.RandomState(rng.integers(2**32 - 1)))
-        lq = np.asarray(log_prob.batch(q) if hasattr(log_prob, "batch") else [log_prob(z) for z in q], dtype=float)
+        lq = evaluate(log_prob, q)
         with np.errstate(invalid="ignore"):
             lw = np.where(np.isfinite(lq), lq - move.log_density(q), -np.inf)
         ok = np.isfinite(lw)
@@ -378,7 +382,7 @@ def choose_pilot_proposal(log_prob, pilot_chain: np.ndarray, kept_lp: np.ndarray
     often than DE was, the ridge proposal is built instead, the ensembles restart from it (:func:`ridge_restart`) and
     its acceptance is measured from the restart's resampled states. The proposal is kept only if accepted at least
     as often as DE was in the pilot (else plain DE), and chosen as often as it is accepted (at most
-    :data:`~bayesdamper.inference.sampling.INDEPENDENCE_SHARE`): a proposal that misses part of the target leaves
+    :data:`INDEPENDENCE_SHARE`): a proposal that misses part of the target leaves
     DE more steps. Returns (proposal or None, its share, new starting walkers per ensemble or None, evaluations of
     the acceptance trials, evaluations of the ridge and restart).
     """

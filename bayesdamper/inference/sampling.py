@@ -73,7 +73,8 @@ class SamplerSettings:
         posteriors such as whole records) or ``"de+pilot"`` (``"de+laplace"`` with the proposal's centre and
         covariance from a discarded pilot run of ``"de"``, :func:`pilot_proposal`: where no reliable
         covariance is known in advance; for two parameters whose posterior the Gaussian misses, the proposal
-        follows the ridge's crest instead, :func:`ridge_proposal`, and the ensembles restart from it).
+        follows the ridge's crest instead,
+        :func:`~bayesdamper.inference.proposals.ridge_proposal`, and the ensembles restart from it).
     """
 
     n_ensembles: int = 3

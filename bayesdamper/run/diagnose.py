@@ -63,7 +63,7 @@ STEPS_PER_SAMPLE = 3
 #: model τ fell from 12-14 to 2-4 steps and the evaluations from 36 000-58 000 to 9 000-14 000 at the same
 #: intervals. Where the pilot's Gaussian misses the posterior (a slow reversal's long, thin, curved (α_V, p_R)
 #: ridge, whose optimiser start can lie far down the ridge from the mass) the proposal follows the ridge's crest
-#: and the ensembles restart from it (:func:`~bayesdamper.inference.sampling.ridge_proposal`); the move's tests are
+#: and the ensembles restart from it (:func:`~bayesdamper.inference.proposals.ridge_proposal`); the move's tests are
 #: in tests/test_sampling.py.
 FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 50
 #: Walkers per ensemble of the final model's posteriors (3 ensembles as always): 8 instead of the baseline's 12.
