@@ -109,26 +109,25 @@ def test_a_pair_must_earn_its_second_effect():
     assert not rows[4]["supported"]
 
 
-def test_marginal_sds_of_a_ridge():
-    """D(z) = -2 log L of a Gaussian with correlation 0.95: the marginal sds are sqrt(diag(Σ)) (3.2 times the
-    conditional ones); a parameter within a step of its bound keeps its conditional sd."""
-    from bayesdamper.diagnosis.candidates import marginal_sds
+def test_interval_sds_of_a_ridge():
+    """The information of a Gaussian log-likelihood with correlation 0.95: the marginal sds are sqrt(diag(Σ)) (3.2
+    times the conditional ones); a parameter on its bound keeps its conditional sd, as does a direction without
+    information (inf)."""
+    from bayesdamper.diagnosis.candidates import interval_sds
 
     cov = np.array([[1.0, 0.95 * 0.5], [0.95 * 0.5, 0.25]]) * 0.01
-    icov = np.linalg.inv(cov)
+    info = np.linalg.inv(cov)
     z0 = np.array([1.0, 2.0])
-
-    def objective(z):
-        d = np.asarray(z) - z0
-        return float(d @ icov @ d)
-
     lo, hi = np.array([0.0, 0.0]), np.array([3.0, 4.0])
-    cond = 1.0 / np.sqrt(np.diag(icov))
-    sd = marginal_sds(objective, z0, lo, hi, cond)
-    np.testing.assert_allclose(sd, np.sqrt(np.diag(cov)), rtol=1e-6)
+    cond = 1.0 / np.sqrt(np.diag(info))
+    np.testing.assert_allclose(interval_sds(info, z0, lo, hi, False), cond)
+    sd = interval_sds(info, z0, lo, hi, True)
+    np.testing.assert_allclose(sd, np.sqrt(np.diag(cov)), rtol=1e-12)
     assert np.all(sd > 3.0 * cond)
-    at_bound = marginal_sds(objective, np.array([0.01, 2.0]), lo, hi, cond)
-    assert at_bound[0] == cond[0]
+    at_bound = interval_sds(info, np.array([0.0, 2.0]), lo, hi, True)
+    np.testing.assert_allclose(at_bound, cond)
+    flat = interval_sds(np.diag([0.0, 4.0]), z0, lo, hi, True)
+    assert flat[0] == np.inf and flat[1] == pytest.approx(0.5)
 
 
 def _last_resort_case(generic_folds, physical_folds, physical_passes, folds=True):

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from bayesdamper.core.errors import BayesDamperError
-from bayesdamper.diagnosis.engine import INFEASIBLE, LM_ITER, ProfileEngine, _profile_lm
+from bayesdamper.diagnosis.engine import INFEASIBLE, LM_ITER, ProfileEngine, _profile_lm, profile_information
 from bayesdamper.diagnosis.global_stage import (  # noqa: F401 - re-exported
     GLOBAL_LM_ITER,
     GLOBAL_REFINE,
@@ -67,7 +67,6 @@ from bayesdamper.diagnosis.spec import (  # noqa: F401 - re-exported: the search
     _untransform,
     search_params,
 )
-from bayesdamper.inference.sampling import finite_difference_hessian
 from bayesdamper.physics.effects import EFFECTS
 
 #: Grid points of the outer search before local refinement: 6 for one new parameter, 4 per axis for two, 3 per
@@ -77,29 +76,27 @@ from bayesdamper.physics.effects import EFFECTS
 GRID_POINTS = 6
 
 
-#: Step of the finite differences of the profile objective, as a fraction of each parameter's search range.
-HESSIAN_STEP = 0.02
+def interval_sds(info: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, marginal: bool) -> np.ndarray:
+    """Standard deviations of the shared parameters from the profile log-likelihood's information ``info`` at its
+    optimum ``z`` (:func:`bayesdamper.diagnosis.engine.profile_information`).
 
-
-def marginal_sds(objective, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, conditional: np.ndarray) -> np.ndarray:
-    """Marginal standard deviations of the profile-likelihood parameters at the optimum ``z``.
-
-    ``objective`` is D(z) = -2 × the profile log-likelihood (up to a constant); the information is half its
-    Hessian (central differences, step :data:`HESSIAN_STEP` of the range) over the parameters at least a step
-    inside their bounds, and the sds are the square roots of the diagonal of its inverse. A parameter at a bound
-    keeps its ``conditional`` sd (that of its own axis), and so do all if the Hessian is not positive definite.
+    Conditional (each parameter's own axis, the others held at the optimum): 1/sqrt of the diagonal, inf where it is
+    not positive. ``marginal``: the square roots of the diagonal of the inverse over the parameters inside their
+    bounds (each one's uncertainty with the others free, far wider along a ridge); a parameter on a bound (within
+    1e-6 of its range), or every parameter if that block is not positive definite, keeps its conditional sd.
     """
-    h = HESSIAN_STEP * (hi - lo)
-    free = np.flatnonzero((z - h >= lo) & (z + h <= hi))
-    if free.size == 0:
-        return conditional
-    H = finite_difference_hessian(objective, z, h, free)
+    diag = np.diag(info)
+    cond = np.where(diag > 0, 1.0 / np.sqrt(np.where(diag > 0, diag, 1.0)), np.inf)
+    tol = 1e-6 * (hi - lo)
+    free = np.flatnonzero((z - lo > tol) & (hi - z > tol) & (diag > 0))
+    if not marginal or free.size < 2:
+        return cond
     try:
-        cov = np.linalg.inv(0.5 * H)
+        cov = np.linalg.inv(info[np.ix_(free, free)])
         np.linalg.cholesky(cov)
     except np.linalg.LinAlgError:
-        return conditional
-    out = np.array(conditional, dtype=float)
+        return cond
+    out = cond.copy()
     out[free] = np.sqrt(np.diag(cov))
     return out
 
@@ -164,16 +161,17 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Levenberg-Marquardt iterations of the local refinement (:func:`_profile_lm`; default :data:`LM_ITER`;
         0: none, the score and intervals at ``start``).
     marginal : bool
-        Intervals from the full Hessian of the profile objective (:func:`marginal_sds`: each parameter's
-        uncertainty with the others free) instead of each axis' own curvature (the others held at the optimum,
-        far narrower along a ridge). Costs about 2 n² evaluations; the diagnosis asks for it for the selection.
+        Intervals from the inverse of the profile log-likelihood's information (:func:`interval_sds`: each
+        parameter's uncertainty with the others free) instead of each axis' own (the others held at the optimum,
+        far narrower along a ridge). The information costs the same either way (one re-fit of every window at the
+        optimum and n solves of each, :func:`~bayesdamper.diagnosis.engine.profile_information`).
     grid_only : bool
         Score the grid's best point without refining it and without intervals (a screen: later rounds rank the
         remaining candidates this way before re-fitting the best jointly with the selected effects).
     intervals_to : float
         Intervals only for a fit whose ΔBIC_eff is at most this (the loop's search: -inf, none; it computes the
-        selected option's intervals at its optimum with ``max_iter`` 0, sparing two re-fits of every window per
-        parameter of every other option).
+        selected option's intervals at its optimum with ``max_iter`` 0, sparing the information's re-fit and
+        solves for every other option).
     """
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
@@ -361,18 +359,13 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         return CandidateFit("+".join(s.label for s in specs), {}, {}, float(d_hat + n_new * math.log(n_total)),
                             float("nan"), np.array([]), np.array([]), n_evals, e_hat, n_new,
                             tuple(s.label for s in specs if s.label in new), at_bound=flags, cost=cost)
-    # Laplace interval on the profile log-likelihood  l(z) = -D(z)/2  (transformed scale)
-    sd = []
+    # Laplace interval on the profile log-likelihood  l(z) = -D(z)/2  (transformed scale), its information in the
+    # Gauss-Newton form of the refinement
     with_intervals = not grid_only and d_hat + n_new * math.log(n_total) <= intervals_to
-    for j in range(len(flat) if with_intervals else 0):
-        h = 0.02 * (hi[j] - lo[j])
-        zp, zm = z_hat.copy(), z_hat.copy()
-        zp[j] = min(z_hat[j] + h, hi[j])
-        zm[j] = max(z_hat[j] - h, lo[j])
-        curv = (objective(zp) - 2 * d_hat + objective(zm)) / (0.5 * (zp[j] - zm[j])) ** 2 / 2
-        sd.append(1 / math.sqrt(curv) if curv > 0 else float("inf"))
-    if marginal and len(flat) > 1 and with_intervals:
-        sd = list(marginal_sds(objective, z_hat, lo, hi, np.array(sd)))
+    sd = []
+    if with_intervals:
+        info = profile_information(engine, np.clip(z_hat, lo, hi), lo, hi, sel, effects_at, flow_for, pack, n_total)
+        sd = list(interval_sds(info, np.clip(z_hat, lo, hi), lo, hi, marginal and len(flat) > 1))
     sd += [float("nan")] * (len(flat) - len(sd))  # a screen by the grid alone, or a hopeless fit: no intervals
     key = tuple(np.round(np.clip(z_hat, lo, hi), 6))
     if idx is None and key in detail and cache.get(key, INFEASIBLE) < INFEASIBLE:

@@ -215,6 +215,62 @@ LM_RADIUS = 0.25
 LM_REJECTS = 4
 
 
+def projected_normal_equations(engine, z, lo, hi, rows, xs, resid, effects_at, flow_for, pack):
+    """Gauss-Newton normal equations of the profile objective at the shared parameters ``z`` (variable projection,
+    :func:`_profile_lm`): ``A = Σ_k J̃_kᵀ J̃_k`` and ``g = Σ_k J̃_kᵀ r_k`` over the windows ``rows``, each J̃_k the
+    forward-difference Jacobian of its residual with respect to z (steps :data:`PSI_STEP` of each range, backwards at
+    an upper bound) at its fitted own parameters ``xs`` and residual ``resid``, with the directions its re-fit can
+    absorb projected out (a parameter of its own at its box bound absorbs nothing). A direction whose perturbed effects
+    have no flow coefficients (infeasible) gets a zero column. Returns ``(A, g, ok)``, ``ok`` the directions solved."""
+    h = PSI_STEP * (hi - lo)
+    hs = np.where(z + h > hi, -h, h)
+    effs, flows, ok = [], [], np.ones(z.size, dtype=bool)
+    for j in range(z.size):
+        zj = z.copy()
+        zj[j] += hs[j]
+        e = effects_at(zj)
+        try:
+            flows.append(flow_for(e))
+        except BayesDamperError:
+            flows.append(None)
+            ok[j] = False
+        effs.append(pack(e))
+    cols = engine.sensitivities(effs, flows, hs, rows, xs, resid)
+    A = np.zeros((z.size, z.size))
+    g = np.zeros(z.size)
+    for k, c, r, x in zip(rows, cols, resid, xs, strict=True):
+        if c is None:
+            continue
+        c = c * ok
+        jx = engine.jac[int(k)]
+        # only what the re-fit can absorb is projected out: not the direction of a parameter held at its bound
+        b_lo, b_hi = engine.problems[int(k)].inner_box()
+        inside = (x > b_lo + 1e-6) & (x < b_hi - 1e-6)
+        if jx is not None and inside.any():
+            q = np.linalg.qr(jx[:, inside])[0]
+            c = c - q @ (q.T @ c)
+        A += c.T @ c
+        g += c.T @ r
+    return A, g, ok
+
+
+def profile_information(engine, z, lo, hi, rows, effects_at, flow_for, pack, d_scale: float) -> np.ndarray:
+    """Observed information of the profile log-likelihood l(z) = -D(z)/2, D = ``d_scale`` log S, at the shared
+    parameters ``z``, in its Gauss-Newton form: ``(d_scale / S) Σ_k J̃_kᵀ J̃_k``
+    (:func:`projected_normal_equations`; the term of the residuals' curvature is left out, as in the refinement).
+
+    The windows ``rows`` are re-fitted at z first (their own parameters, residuals and re-fit Jacobians there), then
+    solved once per shared parameter: about one evaluation of the objective and n solves per window, where central
+    differences of the profile objective cost 2 n² re-fits of every window. With the windows' own directions projected
+    out this is the Schur complement of the joint information of all parameters: the inverse's diagonal gives each
+    shared parameter's variance with every other parameter, its own and the windows', free."""
+    e = effects_at(z)
+    _, xs, resid = engine.evaluate(pack(e), flow_for(e), idx=rows)
+    A, _, _ = projected_normal_equations(engine, z, lo, hi, rows, xs, resid, effects_at, flow_for, pack)
+    s = sum(float(r @ r) for r in resid if r is not None)
+    return (d_scale / max(s, 1e-300)) * A
+
+
 def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_for, pack, max_iter: int,
                 d_scale: float):
     """Local refinement of the profile objective by Levenberg-Marquardt with variable projection.
@@ -239,38 +295,10 @@ def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_fo
     if d >= INFEASIBLE or key not in detail:
         return z, True
     xs, resid = detail[key]
-    h = PSI_STEP * (hi - lo)
     radius = LM_RADIUS
     for _ in range(max_iter):
-        hs = np.where(z + h > hi, -h, h)
-        effs, flows, ok = [], [], np.ones(z.size, dtype=bool)
-        for j in range(z.size):
-            zj = z.copy()
-            zj[j] += hs[j]
-            e = effects_at(zj)
-            try:
-                flows.append(flow_for(e))
-            except BayesDamperError:
-                flows.append(None)
-                ok[j] = False
-            effs.append(pack(e))
-        cols = engine.sensitivities(effs, flows, hs, rows, xs, resid)
-        A = np.zeros((z.size, z.size))
-        g = np.zeros(z.size)
+        A, g, _ = projected_normal_equations(engine, z, lo, hi, rows, xs, resid, effects_at, flow_for, pack)
         scale = d_scale / max(sum(float(r @ r) for r in resid if r is not None), 1e-300)
-        for k, c, r, x in zip(rows, cols, resid, xs, strict=True):
-            if c is None:
-                continue
-            c = c * ok
-            jx = engine.jac[int(k)]
-            # only what the re-fit can absorb is projected out: not the direction of a parameter held at its bound
-            b_lo, b_hi = engine.problems[int(k)].inner_box()
-            inside = (x > b_lo + 1e-6) & (x < b_hi - 1e-6)
-            if jx is not None and inside.any():
-                q = np.linalg.qr(jx[:, inside])[0]
-                c = c - q @ (q.T @ c)
-            A += c.T @ c
-            g += c.T @ r
         dz, pred = lm_step(A, g, z, lo, hi, 0.0)
         lam = 0.0
         while pred <= 0.0 and lam < 1e8:  # a step cut by the bounds that the model says cannot gain

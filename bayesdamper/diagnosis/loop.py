@@ -326,15 +326,15 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             break
         fit = next(c for c in fits if c.effect == best["effect"])
         # the selection's intervals at its optimum (the search itself reports optima only): with several parameters
-        # each one's uncertainty with the others free, with one its own profile's curvature
+        # each one's uncertainty with the others free, with one its own profile's information
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         st = {sp.label: fit.effects[sp.effect] for sp in cand}
         several = sum(len(search_params(sp)) for sp in cand) > 1
         progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
         best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
                                    new=fit.labels, max_iter=0, marginal=several).params
-        best["intervals"] = ("marginal: inverse of the full profile-likelihood Hessian" if several else
-                             "the profile likelihood's curvature")
+        best["intervals"] = ("marginal: inverse of the profile likelihood's Gauss-Newton information" if several
+                             else "the profile likelihood's Gauss-Newton information")
         for lab in fit.labels:
             selected.append(lab)
             sel_specs.append(specs[lab])

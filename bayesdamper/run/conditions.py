@@ -108,8 +108,8 @@ def _fit_subsets(p, table: dict, wanted: list[tuple], specs: dict, progress) -> 
 
 
 def _intervals(p, kept: list[str], specs: dict, values: dict, progress):
-    """The kept effects' estimates at condition ``p`` with intervals from the full profile-likelihood Hessian, the
-    information counted with the kept model's effective sample size: ``(fit, specs, N_c)``."""
+    """The kept effects' estimates at condition ``p`` with intervals from the inverse of the profile likelihood's
+    Gauss-Newton information, counted with the kept model's effective sample size: ``(fit, specs, N_c)``."""
     engine = p.engine()
     try:
         eff = {specs[lab].effect: values[specs[lab].effect] for lab in kept}
