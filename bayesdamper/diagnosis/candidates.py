@@ -16,7 +16,8 @@ parameters appear in both and cancel).
 The search of ψ: a coarse grid (on a screening subset of the transients when there are many) picks the start;
 one parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem
 (variable projection, :func:`_profile_lm`). Each transient's re-fit carries its Jacobian from the last one
-(:mod:`bayesdamper.diagnosis.inner_fit`).
+(:mod:`bayesdamper.diagnosis.inner_fit`). The intervals come from the profile log-likelihood's Gauss-Newton
+information at the optimum (:func:`~bayesdamper.diagnosis.engine.profile_information`).
 
 Global stage. Parameters whose profile has narrow basins — a natural frequency, a damping ratio, a threshold
 (cracking, opening) pressure, a pressure span and a valve's bleed (:func:`narrow_kind`, from the effect's parameter
