@@ -95,6 +95,36 @@ def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     assert started.effects["poppet_valve"]["natural_frequency_Hz"] == pytest.approx(3.0, rel=0.05)
 
 
+def test_stage_one_offset_starts_the_load_cell_offset_between_its_grid_points():
+    """An offset of 180 N (a profile well 180 N wide, the current model at no offset) lies between the six grid points
+    of load_cell_offset's ±5 kN range: the grid alone, as a later round's screen uses it, leaves the candidate no better
+    than the current model; started at stage 1's estimate it reaches the well. No other effect takes the start."""
+    import numpy as np
+    from profile_fakes import FakeProfileEngine, fake_problem
+
+    from bayesdamper.diagnosis.candidates import fit_joint
+    from bayesdamper.diagnosis.unnamed import library_candidates
+
+    class Engine(FakeProfileEngine):
+        problems = [fake_problem(np.ones(50))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            off = eff["load_cell_offset"]["offset_N"]
+            sse = 10.0 + 40.0 * min(1.0, ((off - 180.0) / 180.0) ** 2)
+            return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+    def screen(offset):
+        spec = {c.label: c for c in library_candidates(["load_cell_offset", "friction"], {}, offset)}
+        assert spec["friction"].starts == {}
+        return fit_joint(Engine(), [spec["load_cell_offset"]], {}, {}, np.array([50.0]), np.array([50.0]),
+                         lambda e: None, lambda e: e, grid_only=True)
+
+    assert screen(None).j_pooled == pytest.approx(1.0)
+    started = screen(181.0)
+    assert started.effects["load_cell_offset"]["offset_N"] == pytest.approx(181.0)
+    assert started.j_pooled == pytest.approx(math.sqrt((10.0 + 40.0 / 180.0 ** 2) / 50.0))
+
+
 def test_flow_path_candidates_for_the_other_model_drivers():
     """Part 1 chose Δp (dead zone): one more flow-path transient candidate driven by Q_O (linear law) with the
     same poles; part 1's own driver gets no duplicate, and a bad scale gives none."""

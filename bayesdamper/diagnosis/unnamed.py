@@ -98,12 +98,21 @@ def signature_thresholds(signature: dict) -> list[float]:
     return [abs(float(fit["threshold"]))]
 
 
-def library_candidates(names: list[str], signature: dict) -> list[CandidateSpec]:
+#: The load-cell offset effect and its parameter, started at stage 1's offset (:func:`library_candidates`).
+OFFSET, OFFSET_PARAM = "load_cell_offset", "offset_N"
+
+
+def library_candidates(names: list[str], signature: dict, offset_n: float | None = None) -> list[CandidateSpec]:
     """The library's effects as candidates, their frequency, damping-ratio and time-constant parameters
     started also at part 1's values (:func:`signature_starts`): a coarse grid alone misses the narrow
     optimum of a lightly damped valve. An effect with narrow-basin parameters
     (:func:`bayesdamper.diagnosis.candidates.narrow_kind`) also takes part 1's pole pairs (:func:`signature_poles`)
-    and the residual's onset in Δp (:func:`signature_thresholds`) for the search's global stage."""
+    and the residual's onset in Δp (:func:`signature_thresholds`) for the search's global stage.
+
+    ``offset_n``: the constant force offset [N] stage 1 found in the plateaus
+    (:meth:`bayesdamper.inference.stage1.StaticFit.offset_force`), a start of ``load_cell_offset``: the grid of a
+    one-parameter effect has six points over its range (±1, ±3, ±5 kN for the offset), and an offset of a few hundred
+    newtons lies between them, where a screen by the grid alone cannot find it."""
     from bayesdamper.diagnosis.candidates import narrow_kind
     from bayesdamper.physics.effects import EFFECTS
 
@@ -120,6 +129,8 @@ def library_candidates(names: list[str], signature: dict) -> list[CandidateSpec]
                 starts[prm.name] = tuple(found[kind])
             if not prm.optional:
                 kinds.add(narrow_kind(name, prm.name))
+            if name == OFFSET and prm.name == OFFSET_PARAM and offset_n is not None and math.isfinite(offset_n):
+                starts[prm.name] = (float(offset_n),)
         out.append(CandidateSpec(name, starts=starts,
                                  poles=poles if kinds & {"frequency", "damping"} else (),
                                  thresholds=onsets if "threshold" in kinds else ()))

@@ -260,7 +260,9 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     # 2. candidates: profile fits of shared effect parameters, each window's own parameters re-fitted; the generic
     #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
     generic = not effects or GENERIC in effects
-    names = library_candidates([n for n in names if n != GENERIC], signature)
+    offset = static.offset_force(area) if static is not None else None
+    names = library_candidates([n for n in names if n != GENERIC], signature,
+                               offset[0] if offset is not None else None)
     if generic:
         dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / area
         c = np.median([f.as_array() for f in base_flows], axis=0)
