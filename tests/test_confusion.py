@@ -23,6 +23,8 @@ Cases measured otherwise (:data:`WIDE_CASES`, :class:`Channels`): 1 kHz and 500 
 channels, displacement noise and an unzeroed load cell, and rig-A's eleven speeds. The load cell's offset is a
 property of the data, allowed to be named (``load_cell_offset``) beside the two-state physics; the control must end
 within 2x of the true model's J too, since the library holds its whole truth. CI runs the 1 kHz control.
+With seal friction the offset is of the other sign, so the plateaus keep eq. (4)'s coefficients positive and stage 1
+reports none.
 """
 
 import json
@@ -139,6 +141,13 @@ WIDE_CASES = {
         two_state_base(1.3, "gas-b"), {"series_compliance": {"stiffness_N_per_m": 2.0e7}}, 1.25,
         Channels(rate=500.0, force_sd=12.0, displacement_sd=0.3e-6, force_step=4.0, displacement_step=1.0e-6,
                  offset=90.0)),
+    # seal friction with the offset of the other sign: the plateaus keep eq. (4)'s coefficients positive, stage 1
+    # reports no offset, and the offset's search starts at the plateaus' estimate of it
+    "two-state + seal friction, 1 kHz, ADC steps, unzeroed load cell": (
+        two_state_base(1.2, "gas-b"), {"seal_friction": {"stribeck_N": 200.0, "stribeck_velocity_m_s": 5.0e-3,
+                                                         "viscous_Ns_per_m": 10.0}}, 1.25,
+        Channels(rate=1000.0, force_sd=10.0, displacement_sd=0.3e-6, force_step=4.0, displacement_step=1.0e-6,
+                 offset=-150.0)),
     # the check valve like rig-A's of the two-state table, on eleven speeds (33 transients, about 10 min)
     "two-state + check valve 2 Hz, 11 speeds": (
         two_state_base(1.25, "gas-b"), {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5,

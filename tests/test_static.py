@@ -71,3 +71,25 @@ def test_too_few_plateaus_is_a_data_error():
 def test_single_velocity_is_a_data_error():
     with pytest.raises(DataError, match="one velocity"):
         fit_direction(np.full(4, 2e-6), np.full(4, 1e5), 1, "x")
+
+
+def test_offset_estimate_under_friction_that_keeps_eq4_positive():
+    """Coulomb friction (200 N, both directions) and a -150 N load-cell offset on three speeds: the forward plateaus
+    carry +50 N and the backward +350 N, eq. (4) alone fits both with positive coefficients, so stage 1 reports no
+    offset; the offset fit's estimate, the diagnosis' start for ``load_cell_offset``, is the offset (the symmetric
+    friction projects out of the antisymmetric offset when both directions have the same speeds). Noise-free: to
+    1 N. Fewer than three plateaus in a direction: no estimate."""
+    from bayesdamper.inference.stage1 import offset_estimate
+
+    friction, offset = 200.0, -150.0
+    plateaus = []
+    for direction, cl, cq in ((1, PAPER_FLOW.laminar_12, PAPER_FLOW.quadratic_12),
+                              (-1, PAPER_FLOW.laminar_21, PAPER_FLOW.quadratic_21)):
+        for v in (0.5e-3, 1.0e-3, 1.5e-3):
+            q = AREA * v
+            dp = cl * q + cq * q * q + (friction + direction * offset) / AREA
+            plateaus.append(SimpleNamespace(direction=direction, flow_rate=q, pressure_drop=dp))
+    static = fit_static(plateaus)
+    assert static.offset is None and not static.constrained
+    assert offset_estimate(plateaus, AREA) == pytest.approx(offset, abs=1.0)
+    assert offset_estimate(plateaus[:5], AREA) is None

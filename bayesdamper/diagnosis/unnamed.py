@@ -109,8 +109,9 @@ def library_candidates(names: list[str], signature: dict, offset_n: float | None
     (:func:`bayesdamper.diagnosis.candidates.narrow_kind`) also takes part 1's pole pairs (:func:`signature_poles`)
     and the residual's onset in Δp (:func:`signature_thresholds`) for the search's global stage.
 
-    ``offset_n``: the constant force offset [N] stage 1 found in the plateaus
-    (:meth:`bayesdamper.inference.stage1.StaticFit.offset_force`), a start of ``load_cell_offset``: the grid of a
+    ``offset_n``: the constant force offset [N] stage 1 found in the plateaus, or the plateaus' estimate of one
+    (:meth:`bayesdamper.inference.stage1.StaticFit.offset_force`,
+    :func:`bayesdamper.inference.stage1.offset_estimate`), a start of ``load_cell_offset``: the grid of a
     one-parameter effect has six points over its range (±1, ±3, ±5 kN for the offset), and an offset of a few hundred
     newtons lies between them, where a screen by the grid alone cannot find it."""
     from bayesdamper.diagnosis.candidates import narrow_kind

@@ -261,6 +261,24 @@ def fit_with_offset(forward: tuple[np.ndarray, np.ndarray], backward: tuple[np.n
     return OffsetFit(coef[:4].copy(), float(coef[4]), cov, float(np.sqrt(s2)), dof)
 
 
+def offset_estimate(plateaus: Sequence, area: float) -> float | None:
+    """F_0 [N] of eq. (4) with a constant force offset fitted to the plateaus (:func:`fit_with_offset`), whatever its
+    significance and its coefficients' signs, for piston area ``area`` [m^2]; None with fewer than three plateaus in
+    a direction. A start for the diagnosis' ``load_cell_offset``, not a finding: where friction also acts on the
+    plateaus, an offset can leave every coefficient of eq. (4) alone positive, and stage 1 then reports none."""
+    pts = {}
+    for direction in (1, -1):
+        sel = [p for p in plateaus if p.direction == direction]
+        if len(sel) < 3:
+            return None
+        pts[direction] = (np.array([p.flow_rate for p in sel]), np.array([p.pressure_drop for p in sel]))
+    try:
+        value = fit_with_offset(pts[1], pts[-1]).force(area)[0]
+    except np.linalg.LinAlgError:  # the plateaus' flow rates do not separate the coefficients
+        return None
+    return value if np.isfinite(value) else None
+
+
 def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
     """Stage 1: fit eq. (4) per direction to the plateaus of a data set.
 

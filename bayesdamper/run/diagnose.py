@@ -33,6 +33,7 @@ from bayesdamper.diagnosis.summary import GENERIC, summarise_diagnosis
 from bayesdamper.diagnosis.sysid import apply_law
 from bayesdamper.diagnosis.unnamed import FLOW_DRIVERS, library_candidates, unnamed_candidates
 from bayesdamper.inference.sampling import SamplerSettings
+from bayesdamper.inference.stage1 import offset_estimate
 from bayesdamper.inference.stage2 import StageTwoSettings
 from bayesdamper.io.outputs import versions
 from bayesdamper.physics.effects import EFFECTS
@@ -260,9 +261,11 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     # 2. candidates: profile fits of shared effect parameters, each window's own parameters re-fitted; the generic
     #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
     generic = not effects or GENERIC in effects
-    offset = static.offset_force(area) if static is not None else None
-    names = library_candidates([n for n in names if n != GENERIC], signature,
-                               offset[0] if offset is not None else None)
+    # the load-cell offset starts where stage 1 found one, else at the plateaus' estimate of one (a start only)
+    reported = static.offset_force(area) if static is not None else None
+    offset = reported[0] if reported is not None else (
+        offset_estimate([p for s in segs for p in s.plateaus], area) if static is not None else None)
+    names = library_candidates([n for n in names if n != GENERIC], signature, offset)
     if generic:
         dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / area
         c = np.median([f.as_array() for f in base_flows], axis=0)
