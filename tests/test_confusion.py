@@ -9,8 +9,9 @@ injected family is named, the controls get nothing but the two-state physics, an
 most half where an effect exists. No threshold here was tuned on these cases: the rule's constants are the
 stated criterion's, the J ratio ≤ 0.5.
 
-CI runs the control and the inertance (about 6 min on 2 cores); the poppet valve, friction + servo and the servo
-with more reversals (the longest: 15 transients, three rounds) run with ``make test-confusion``.
+CI runs the control, the inertance and the 1 kHz control of :data:`WIDE_CASES` (about 9 min on 2 cores); the poppet
+valve, friction + servo and the servo with more reversals (the longest: 15 transients, three rounds) run with
+``make test-confusion``.
 
 A second base, the reference's physical two-state damper (``two_state_damper``: absolute chamber pressures of eq.
 (1), eq. (2)'s bulk modulus with a polytropic gas referenced to ATMOSPHERIC pressure, an accumulator with its own
