@@ -261,17 +261,23 @@ def fit_with_offset(forward: tuple[np.ndarray, np.ndarray], backward: tuple[np.n
     return OffsetFit(coef[:4].copy(), float(coef[4]), cov, float(np.sqrt(s2)), dof)
 
 
+def _direction_points(plateaus: Sequence) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each direction's (+1, -1) plateau flow rates [m^3/s] and pressure drops [Pa]."""
+    out = {}
+    for direction in (1, -1):
+        sel = [p for p in plateaus if p.direction == direction]
+        out[direction] = (np.array([p.flow_rate for p in sel]), np.array([p.pressure_drop for p in sel]))
+    return out
+
+
 def offset_estimate(plateaus: Sequence, area: float) -> float | None:
     """F_0 [N] of eq. (4) with a constant force offset fitted to the plateaus (:func:`fit_with_offset`), whatever its
     significance and its coefficients' signs, for piston area ``area`` [m^2]; None with fewer than three plateaus in
     a direction. A start for the diagnosis' ``load_cell_offset``, not a finding: where friction also acts on the
     plateaus, an offset can leave every coefficient of eq. (4) alone positive, and stage 1 then reports none."""
-    pts = {}
-    for direction in (1, -1):
-        sel = [p for p in plateaus if p.direction == direction]
-        if len(sel) < 3:
-            return None
-        pts[direction] = (np.array([p.flow_rate for p in sel]), np.array([p.pressure_drop for p in sel]))
+    pts = _direction_points(plateaus)
+    if min(q.size for q, _ in pts.values()) < 3:
+        return None
     try:
         value = fit_with_offset(pts[1], pts[-1]).force(area)[0]
     except np.linalg.LinAlgError:  # the plateaus' flow rates do not separate the coefficients
@@ -292,11 +298,8 @@ def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
     Where a coefficient is held at 0, the fit with a constant force offset is made and reported in ``offset`` if it
     explains the held coefficient (:attr:`OffsetFit.explains`); the coefficients stay eq. (4)'s alone.
     """
-    fits, points = {}, {}
-    for direction in (1, -1):
-        sel = [p for p in plateaus if p.direction == direction]
-        points[direction] = (np.array([p.flow_rate for p in sel]), np.array([p.pressure_drop for p in sel]))
-        fits[direction] = fit_direction(*points[direction], direction, source)
+    points = _direction_points(plateaus)
+    fits = {direction: fit_direction(*points[direction], direction, source) for direction in (1, -1)}
     static = StaticFit(fits[1], fits[-1])
     if static.constrained:
         off = fit_with_offset(points[1], points[-1])

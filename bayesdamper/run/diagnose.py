@@ -262,9 +262,10 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     #    effect enters with the structure part 1 found (driver, law, poles), on the force and on the flow path
     generic = not effects or GENERIC in effects
     # the load-cell offset starts where stage 1 found one, else at the plateaus' estimate of one (a start only)
+    plateaus = [p for s in segs for p in s.plateaus]
     reported = static.offset_force(area) if static is not None else None
     offset = reported[0] if reported is not None else (
-        offset_estimate([p for s in segs for p in s.plateaus], area) if static is not None else None)
+        offset_estimate(plateaus, area) if static is not None else None)
     names = library_candidates([n for n in names if n != GENERIC], signature, offset)
     if generic:
         dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / area
@@ -278,7 +279,6 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     # the reference inertance case of tests/test_confusion.py lost its only candidate); the final model is solved
     # uncapped at the likelihood's tolerance
     problems, warm, screen, screen_warm = search_problems(windows, base, ds.damper, flow0, STEPS_PER_SAMPLE)
-    plateaus = [p for s in segs for p in s.plateaus]
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
                     rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
