@@ -8,8 +8,9 @@ combination is a one-off cost of an installation, not of a diagnosis (``--cold-k
 Printed per data set: the wall time of every progress phase (from the run's phase summary lines, which a run whose
 stderr is not a terminal prints as each phase ends: :mod:`bayesdamper.run.progress`), the total wall and CPU time of
 the run, the load average before it (a shared machine's other jobs slow the run), the profile searches' seconds and
-evaluations per stage (grid, global starts, refinement, intervals: ``diagnosis.json`` ``search.cost_by_stage``), the
-selected effects, the pooled J before and after and the findings (parameters on a bound, speeds that got worse).
+evaluations per stage (grid, global starts, refinement, intervals: ``diagnosis.json`` ``search.cost_by_stage``) and
+the select-and-refit loop's wall time per step (``search.cost_by_step``), the selected effects, the pooled J before
+and after and the findings (parameters on a bound, speeds that got worse).
 
     python benchmarks/diagnose_phases.py [DATA ...] [--out /tmp/bench-phases] [--workers 2] [--cold-kernels]
                                          [-- EXTRA DIAGNOSE ARGS]
@@ -80,6 +81,11 @@ def run(data: str, out: Path, workers: int, cold_kernels: bool, extra: list[str]
             if stage in cost:
                 c = cost[stage]
                 print(f"    {stage:<10} {c['s']:8.1f} s  {c['evaluations']:6d} evaluations  {c['fits']:4d} fits")
+    steps = (d.get("search") or {}).get("cost_by_step") or {}
+    if steps:
+        print("  the select-and-refit loop by step (wall time, the searches run in it, their evaluations):")
+        for step, c in sorted(steps.items(), key=lambda kv: -kv[1]["s"]):
+            print(f"    {step:<52} {c['s']:8.1f} s  {c['fits']:4d} fits  {c['evaluations']:6d} evaluations")
     print(f"  selected: {', '.join(d.get('selected') or []) or 'none'}; pooled J {d['baseline']['J_pooled']:.4f} -> "
           f"{d['final']['J_pooled']:.4f}; reported wall time {d.get('wall_time_s', float('nan')):.1f} s")
     from bayesdamper.diagnosis.summary import findings_text

@@ -198,7 +198,8 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
 
 def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):
     """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
-    alone, also from that fit's optimum; the better refinement is the option (a valve's screen point in a chattering
+    alone, also from that fit's optimum, each start for GLOBAL_LM_ITER iterations and the best continued; the better
+    refinement is the option (a valve's screen point in a chattering
     basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
     The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum,
     and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point (the leak's pair is
@@ -209,10 +210,17 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
     pairs, starts_ts = [], []
 
-    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+    continued = []
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, max_iter=None, **k):
         label = cands[-1].label
         if grid_only:  # the screen on the two-state model: the valve's grid point lies at 6 Hz
             return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 6.0}}, effect=label)
+        if max_iter == loop.LM_ITER - loop.GLOBAL_LM_ITER:  # the best start continued: 10 better
+            continued.append((label, start))
+            return SimpleNamespace(labels=("two_state", label), delta_bic=start["two_state"]["score"] - 10.0,
+                                   effects={"two_state": {}, label: {}}, effect=f"two_state+{label}")
+        assert max_iter == loop.GLOBAL_LM_ITER
         f = start[label]["f"] if label in start else None  # None: searched afresh
         pairs.append((label, f))
         starts_ts.append(start["two_state"])
@@ -222,7 +230,7 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
         if f is None and label == "poppet_valve":
             score = -2500.0
         return SimpleNamespace(labels=("two_state", label), delta_bic=score,
-                               effects={"two_state": {}, label: {"f": f}}, effect=f"two_state+{label}")
+                               effects={"two_state": {"score": score}, label: {"f": f}}, effect=f"two_state+{label}")
 
     monkeypatch.setattr(loop, "fit_joint", fake_fit)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=+40.0, effects={"two_state": {"G": 1e-15}},
@@ -235,9 +243,13 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     key = lambda r: (r[0], -1.0 if r[1] is None else r[1])  # noqa: E731
     assert sorted(pairs, key=key) == [("leakage", None), ("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", None),
                                       ("poppet_valve", 1.8), ("poppet_valve", 6.0), ("poppet_valve", 6.0)]
+    # each start refined for GLOBAL_LM_ITER iterations, the best continued to the budget, and the continuation is the
+    # option where it is better
+    assert sorted((lab, st[lab]["f"], st["two_state"]["score"]) for lab, st in continued) == [
+        ("leakage", 6.0, -300.0), ("poppet_valve", None, -2500.0)]
     best = {o.effect: o for o in out}
-    assert best["two_state+poppet_valve"].delta_bic == -2500.0  # searched afresh on the refilling model
-    assert best["two_state+leakage"].delta_bic == -300.0  # from the refilling start at the screen's point
+    assert best["two_state+poppet_valve"].delta_bic == -2510.0  # searched afresh on the refilling model
+    assert best["two_state+leakage"].delta_bic == -310.0  # from the refilling start at the screen's point
     # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults,
     # the screen's point with the two-state model as fitted alone but refilling
     own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()

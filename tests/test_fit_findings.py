@@ -334,3 +334,28 @@ def test_a_known_optimum_of_one_parameter_is_scored_there_without_a_search():
                          lambda e: None, lambda e: e)
     assert "grid" in searched.cost and len(calls) > 3
     assert searched.effects["actuator_lag"]["time_constant_s"] == pytest.approx(0.05, rel=0.05)
+
+
+def test_the_loops_steps_count_their_wall_time_and_the_searches_run_in_them():
+    """search_step closes the open step and opens the next: each search's evaluations are counted in the step open
+    when it ran, and a step's wall time is the time until the next step opened (a 50 ms pause in it at least)."""
+    import time
+
+    from bayesdamper.diagnosis.global_stage import _tally, reset_search_cost, search_cost_by_step, search_step
+
+    reset_search_cost()
+    search_step("candidates searched")
+    _tally({"grid": {"s": 0.0, "evaluations": 6}, "refine": {"s": 0.0, "evaluations": 4}})
+    time.sleep(0.05)
+    search_step("pairs")
+    _tally({"refine": {"s": 0.0, "evaluations": 3}})
+    _tally({"refine": {"s": 0.0, "evaluations": 2}})
+    search_step(None)
+    _tally({"refine": {"s": 0.0, "evaluations": 100}})  # after the loop: no step
+    steps = search_cost_by_step()
+    assert set(steps) == {"candidates searched", "pairs"}
+    assert (steps["candidates searched"]["fits"], steps["candidates searched"]["evaluations"]) == (1, 10)
+    assert (steps["pairs"]["fits"], steps["pairs"]["evaluations"]) == (2, 5)
+    assert steps["candidates searched"]["s"] >= 0.05 > steps["pairs"]["s"]
+    reset_search_cost()
+    assert search_cost_by_step() == {}

@@ -221,3 +221,71 @@ def test_result_is_json_and_text(synthetic):
     assert any("Verdict" in ln for ln in lines) and any("const. B" in ln and "initial" in ln for ln in lines)
     assert any("ridge of equal B" in ln for ln in lines)
     assert comparison_text(None) == [] and "not made" in comparison_text({"error": "x"})[0]
+
+
+# ------------------------------------------------------------------------------------------- path independence
+
+
+def test_a_search_depends_on_the_current_model_not_on_the_searches_before_it(synthetic):
+    """Every search starts each window's re-fit from the current model's Jacobian (ProfileEngine.restart), not the
+    one the last search left: the same candidate searched before and after another ends at the same optimum to the
+    last bit (with the Jacobians carried across searches the second search took another path)."""
+    from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint
+
+    problems, _, _, truth = synthetic
+    engine = _engine(problems, truth)
+    sse, _, resid = engine.evaluate(effect_argument({}), None, keep=True)
+    n_eff = effective_sizes(resid)
+
+    def search(name):
+        return fit_joint(engine, [CandidateSpec(name)], {}, {}, sse, n_eff, lambda e: None, effect_argument,
+                         intervals_to=-math.inf)
+
+    first = search("leakage")
+    other = search("series_compliance")
+    again = search("leakage")
+    assert other.effects != first.effects
+    assert again.delta_bic == first.delta_bic
+    assert again.effects == first.effects
+    assert all(np.array_equal(a, b) for a, b in zip(again.warm, first.warm, strict=True))
+
+
+def test_the_folds_share_their_first_refits_and_the_score_is_unchanged(synthetic, monkeypatch):
+    """The leave-velocities-out folds of an option all start from its full-data optimum with the current model's
+    Jacobians: within lovo_score the engine re-uses a window's re-fit or sensitivities whose inputs it has seen
+    (ProfileEngine.remembering). The score is the same to the last bit as with every task run, with fewer tasks."""
+    import contextlib
+
+    from bayesdamper.diagnosis import engine as engine_module
+    from bayesdamper.diagnosis.attribution import lovo_score, velocity_folds
+    from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint
+
+    problems, _, speeds, truth = synthetic
+    runs = {"n": 0}
+    for name in ("_inner_fit", "_psi_columns"):
+        fn = getattr(engine_module, name)
+
+        def counted(task, fn=fn):
+            runs["n"] += 1
+            return fn(task)
+
+        counted.__name__ = name
+        monkeypatch.setattr(engine_module, name, counted)
+
+    def score(remember: bool):
+        engine = _engine(problems, truth)
+        if not remember:
+            engine.remembering = contextlib.nullcontext
+        sse, _, resid = engine.evaluate(effect_argument({}), None, keep=True)
+        n_eff = effective_sizes(resid)
+        spec = CandidateSpec("command_displacement")
+        fit = fit_joint(engine, [spec], {}, {}, sse, n_eff, lambda e: None, effect_argument, intervals_to=-math.inf)
+        runs["n"] = 0
+        sc = lovo_score(engine, velocity_folds(speeds), [spec], fit.effects, [], {}, sse, n_eff, lambda e: None,
+                        effect_argument)
+        return sc, runs["n"]
+
+    plain, n_plain = score(False)
+    shared, n_shared = score(True)
+    assert shared == plain
+    assert n_shared < n_plain, (n_shared, n_plain)

@@ -95,6 +95,37 @@ def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     assert started.effects["poppet_valve"]["natural_frequency_Hz"] == pytest.approx(3.0, rel=0.05)
 
 
+def test_a_screen_grid_holds_the_candidates_optimum_of_the_round_before():
+    """A later round screens a candidate by its grid alone: with the well at 3 Hz between the grid's frequencies the
+    screen stays on the plateau, and with its earlier optimum as a point of the grid (CandidateSpec.points) it
+    scores there. A point without a value for a grid axis is not a point."""
+    import numpy as np
+    from profile_fakes import FakeProfileEngine, fake_problem
+
+    from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
+
+    class Engine(FakeProfileEngine):
+        problems = [fake_problem(np.ones(50))]
+
+        def evaluate(self, eff, flow=None, keep=False, idx=None):
+            p = eff["poppet_valve"]
+            well = math.exp(-((math.log(p["natural_frequency_Hz"] / 3.0)) / 0.08) ** 2)
+            sse = 50.0 * (1.0 - 0.9 * well)
+            return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+    def screen(points):
+        return fit_joint(Engine(), [CandidateSpec("poppet_valve", points=points)], {}, {}, np.array([50.0]),
+                         np.array([50.0]), lambda e: None, lambda e: e, grid_only=True)
+
+    earlier = {**EFFECTS["poppet_valve"].defaults(), "natural_frequency_Hz": 3.0}
+    assert screen(()).j_pooled > 0.9
+    held = screen((earlier,))
+    assert held.j_pooled == pytest.approx(math.sqrt(0.1), rel=1e-6)
+    assert held.effects["poppet_valve"]["natural_frequency_Hz"] == pytest.approx(3.0)
+    partial = {k: v for k, v in earlier.items() if k != "damping_ratio"}
+    assert screen((partial,)).j_pooled > 0.9
+
+
 def test_stage_one_offset_starts_the_load_cell_offset_between_its_grid_points():
     """An offset of 180 N (a profile well 180 N wide, the current model at no offset) lies between the six grid points
     of load_cell_offset's ±5 kN range: the grid alone, as a later round's screen uses it, leaves the candidate no better

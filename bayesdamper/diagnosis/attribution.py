@@ -20,6 +20,7 @@ runner-up the same is done on the paired differences of the two candidates' d_g.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -123,6 +124,9 @@ def velocity_folds(velocities: list[float]) -> list[np.ndarray]:
 
 def _fold_sse(engine, specs, values, fixed, current_sse, n_eff, flow_for, pack, train, test):
     """Held-out SSE of the model ``specs`` re-fitted on ``train``."""
+    restart = getattr(engine, "restart", None)
+    if restart is not None:  # the held-out re-fits start from the current model's Jacobians (ProfileEngine.restart)
+        restart()
     if not specs:
         e = dict(fixed)
     else:
@@ -134,15 +138,9 @@ def _fold_sse(engine, specs, values, fixed, current_sse, n_eff, flow_for, pack, 
     return float(np.sum(sse))
 
 
-def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec], cand_values: dict,
-               cur_specs: list[CandidateSpec], cur_values: dict, current_sse: np.ndarray, n_eff: np.ndarray,
-               flow_for, pack, cache: dict | None = None) -> LovoScore:
-    """Leave-velocities-out gain of the candidate model over the current one (module docstring).
-
-    ``cand_specs`` / ``cur_specs``: the free candidates of each model with their full-data values
-    (``{effect: {param: value}}``); ``cache`` keeps the current model's held-out SSE across candidates.
-    """
-    all_idx = np.arange(getattr(engine, "n", len(engine.problems)))
+def _fold_gains(engine, folds, all_idx, cand_specs, cand_values, cur_specs, cur_values, current_sse, n_eff, flow_for,
+                pack, cache) -> list[float]:
+    """Per fold: the candidate's held-out log predictive gain over the current model (:func:`lovo_score`)."""
     d = []
     for g, test in enumerate(folds):
         train = np.setdiff1d(all_idx, test)
@@ -155,6 +153,22 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
                 cache[key] = s_cur
         s_cand = _fold_sse(engine, cand_specs, cand_values, {}, current_sse, n_eff, flow_for, pack, train, test)
         d.append(-0.5 * float(n_eff[test].sum()) * math.log(max(s_cand, 1e-300) / max(s_cur, 1e-300)))
+    return d
+
+
+def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec], cand_values: dict,
+               cur_specs: list[CandidateSpec], cur_values: dict, current_sse: np.ndarray, n_eff: np.ndarray,
+               flow_for, pack, cache: dict | None = None) -> LovoScore:
+    """Leave-velocities-out gain of the candidate model over the current one (module docstring).
+
+    ``cand_specs`` / ``cur_specs``: the free candidates of each model with their full-data values
+    (``{effect: {param: value}}``); ``cache`` keeps the current model's held-out SSE across candidates.
+    """
+    all_idx = np.arange(getattr(engine, "n", len(engine.problems)))
+    # the folds' fits all start from the full-data optimum: their first re-fits and sensitivities are shared
+    with engine.remembering() if hasattr(engine, "remembering") else contextlib.nullcontext():
+        d = _fold_gains(engine, folds, all_idx, cand_specs, cand_values, cur_specs, cur_values, current_sse, n_eff,
+                        flow_for, pack, cache)
     d = np.array(d)
     out = outlying_folds(d)
     k = d[~out]

@@ -13,11 +13,12 @@ the Bayesian information criterion of a Gaussian model with one unknown scale on
 normalised residual, relative to the current model (negative is better; the per-transient
 parameters appear in both and cancel).
 
-The search of ψ: a coarse grid (on a screening subset of the transients when there are many) picks the start;
-one parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem
-(variable projection, :func:`_profile_lm`). Each transient's re-fit carries its Jacobian from the last one
-(:mod:`bayesdamper.diagnosis.inner_fit`). The intervals come from the profile log-likelihood's Gauss-Newton
-information at the optimum (:func:`~bayesdamper.diagnosis.engine.profile_information`).
+The search of ψ: a coarse grid (on a screening subset of the transients when there are many) picks the start; one
+parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem (variable
+projection, :func:`_profile_lm`). Each transient's re-fit carries its Jacobian from the last one of the search
+(:mod:`bayesdamper.diagnosis.inner_fit`); a search starts from the current model's
+(:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.restart`). The intervals come from the profile log-likelihood's
+Gauss-Newton information at the optimum (:func:`~bayesdamper.diagnosis.engine.profile_information`).
 
 Global stage. Parameters whose profile has narrow basins — a natural frequency, a damping ratio, a threshold
 (cracking, opening) pressure, a pressure span and a valve's bleed (:func:`narrow_kind`, from the effect's parameter
@@ -160,7 +161,8 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Fit on these transients only (leave-velocities-out), then no interval is computed.
     max_iter : int, optional
         Levenberg-Marquardt iterations of the local refinement (:func:`_profile_lm`; default :data:`LM_ITER`;
-        0: none, the score and intervals at ``start``).
+        0: none, the score and intervals at ``start``). A refinement given its iterations is not finished by the
+        simplex after it (the default search's last resort): its caller continues it.
     marginal : bool
         Intervals from the inverse of the profile log-likelihood's information (:func:`interval_sds`: each
         parameter's uncertainty with the others free) instead of each axis' own (the others held at the optimum,
@@ -174,6 +176,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         selected option's intervals at its optimum with ``max_iter`` 0, sparing the information's re-fit and
         solves for every other option).
     """
+    restart = getattr(engine, "restart", None)
+    if restart is not None:  # every search starts from the current model's Jacobians, whatever ran before it
+        restart()
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
     lo = np.array([min(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])
@@ -239,6 +244,24 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         return sorted({float(np.clip(_transform(p, v), lo[j], hi[j])) for v in spec.starts.get(p.name, ())
                        if math.isfinite(v) and (not p.log or p.sign * v > 0)})
 
+    def grid_points():
+        """The specs' whole points (``CandidateSpec.points``) as grid points: z0 with the point's values on the
+        searched axes (grid and held); a point without a value for one of the grid axes is skipped."""
+        out = []
+        for spec, _ in groups:
+            for point in spec.points:
+                z = z0.copy()
+                for j in grid_dims + held_dims:
+                    sp, p = flat[j]
+                    v = float(point.get(p.name, math.nan)) if sp is spec else math.nan
+                    if math.isfinite(v) and (not p.log or p.sign * v > 0):
+                        z[j] = float(np.clip(_transform(p, v), lo[j], hi[j]))
+                    elif sp is spec and j in grid_dims:
+                        break
+                else:
+                    out.append(z)
+        return out
+
     cost: dict = {}
     clock = [time.perf_counter(), 0]
 
@@ -251,7 +274,8 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     if len(flat) == 1 and max_iter == 0 and not grid_dims:  # the score and intervals at a known optimum
         z_hat = z0
     elif len(flat) == 1:
-        grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS), *(starts_of(0) if grid_dims else [])}))
+        grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS),
+                                *((starts_of(0) + [float(z[0]) for z in grid_points()]) if grid_dims else [])}))
         vals = [grid_objective([g]) for g in grid]
         i = int(np.argmin(vals))
         a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
@@ -285,6 +309,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                     z = z0.copy()
                     z[grid_dims] = pt
                     cands.append(z)
+            cands += grid_points()
             vals = [grid_objective(z) for z in cands]
             best = cands[int(np.argmin(vals))]
             stage("grid")
@@ -332,7 +357,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             if not done and budget > first:
                 z_hat, done = _profile_lm(engine, z_hat, lo, hi, sel, objective, detail, effects_at, flow_for, pack,
                                           budget - first, n_total)
-            if not done and grid_dims and objective(z_hat) + n_new * math.log(n_total) < 0.0:
+            if not done and grid_dims and max_iter is None and objective(z_hat) + n_new * math.log(n_total) < 0.0:
                 # a search from the grid whose refinement did not converge, where the candidate improves on the
                 # current model by ΔBIC_eff itself: Nelder-Mead from where it stopped, with the grid axes'
                 # exploratory simplex (a sixth of their range), as the search was before the refinement existed.

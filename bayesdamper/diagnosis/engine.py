@@ -4,16 +4,21 @@ and the shared parameters' Levenberg-Marquardt refinement by variable projection
 A window's own parameters x are (log α_V, log p_R), plus the start force of a window that starts in motion and the
 flow coefficients of a data set without plateaus (:class:`~bayesdamper.inference.problem.EffectsProblem`).
 :class:`ProfileEngine` evaluates S_k(ψ), the per-window sums of squares of eq. (9) at their least-squares x, with
-worker processes; each re-fit carries its window's Jacobian from the last one
-(:mod:`bayesdamper.diagnosis.inner_fit`). :meth:`ProfileEngine.evaluate_at` solves every window once at given own
-parameters instead (a held-out prediction, :mod:`bayesdamper.diagnosis.comparison`). :func:`_profile_lm` refines the
-shared parameters of a candidate (:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
+worker processes; each re-fit carries its window's Jacobian from the last one of the same search
+(:mod:`bayesdamper.diagnosis.inner_fit`), and every search starts from the Jacobians at the current model's optimum
+(:meth:`ProfileEngine.restart`), so that what a search finds does not depend on which searches ran before it.
+:meth:`ProfileEngine.evaluate_at` solves every window once at given own parameters instead (a held-out prediction,
+:mod:`bayesdamper.diagnosis.comparison`). :func:`_profile_lm` refines the shared parameters of a candidate
+(:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import pickle
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,7 +128,8 @@ def _psi_columns(args):
 @dataclass
 class ProfileEngine:
     """Evaluates S_k(ψ) for all transients (in parallel), each re-fit starting from the current model's optimum
-    (``warm``) with the Jacobian its transient's last re-fit ended with (``jac``, :mod:`.inner_fit`).
+    (``warm``) with the Jacobian its transient's last re-fit ended with (``jac``, :mod:`.inner_fit`); a search
+    starts every window from the current model's Jacobian (:meth:`restart`).
 
     ``screen``: windows of the searches' grid stage (:func:`bayesdamper.diagnosis.attribution.screening_subset`;
     None: all). ``screen_problems``: short stretches of the windows (:func:`screening_stretches`) that the grid stage
@@ -146,7 +152,9 @@ class ProfileEngine:
             self.screen = np.arange(self.n, len(self.problems))
         _PROBLEMS[:] = self.problems  # in place: the forked workers and importers see the same list
         self.jac: list = [None] * len(self.problems)  # each window's Jacobian from its last re-fit
+        self.base_jac: list = [None] * self.n  # each window's Jacobian at the current model's optimum
         self._pool = None
+        self._memo: dict | None = None  # task digest -> outcome, while :meth:`remembering`
         if self.workers > 1:
             import multiprocessing as mp
 
@@ -162,9 +170,31 @@ class ProfileEngine:
             self._pool.shutdown()
 
     def _map(self, fn, tasks):
+        if self._memo is not None:
+            keys = [hashlib.blake2b(pickle.dumps((fn.__name__, t), protocol=5), digest_size=20).digest()
+                    for t in tasks]
+            todo = {key: t for key, t in zip(keys, tasks, strict=True) if key not in self._memo}
+            self._memo.update(zip(todo, self._run(fn, list(todo.values())), strict=True))
+            return [self._memo[key] for key in keys]
+        return self._run(fn, tasks)
+
+    def _run(self, fn, tasks):
         if self._pool is None:
             return [fn(t) for t in tasks]
         return list(self._pool.map(fn, tasks, chunksize=max(1, len(tasks) // (4 * self.workers))))
+
+    @contextmanager
+    def remembering(self):
+        """Within this block a task (a window's re-fit, solve or sensitivities) whose inputs are those of one run
+        before is not run again: its outcome is re-used. A task is a pure function of its inputs (the window, the
+        effects, the flow coefficients, the warm start and the carried Jacobian), so the outcome is the same to the
+        last bit. The leave-velocities-out folds of one option all start from its full-data optimum with the current
+        model's Jacobians (:meth:`restart`): the re-fits and sensitivities of their first iteration are shared."""
+        self._memo = {}
+        try:
+            yield self
+        finally:
+            self._memo = None
 
     def sensitivities(self, effs: list, flows: list, hs: np.ndarray, idx, xs: np.ndarray, resid: list) -> list:
         """Per transient of ``idx``: forward-difference Jacobian of its residual with respect to the shared
@@ -177,18 +207,30 @@ class ProfileEngine:
 
     def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
         """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
-        these transients only (then the arrays are over ``idx``)."""
+        these transients only (then the arrays are over ``idx``).
+
+        ``keep`` (every window): ``eff`` becomes the current model. Each window is re-fitted from its warm start
+        with a Jacobian differenced afresh, whatever the last search left, and its optimum and the Jacobian there
+        become the warm start and the Jacobian every later search starts from (:meth:`restart`)."""
+        keep = keep and idx is None
         ks = range(self.n) if idx is None else [int(i) for i in idx]
-        tasks = [(k, eff, flow, self.warm[k], self.jac[k]) for k in ks]
+        tasks = [(k, eff, flow, self.warm[k], None if keep else self.jac[k]) for k in ks]
         out = self._map(_inner_fit, tasks)
         xs = [o[0] for o in out]
         sse = np.array([o[1] for o in out])
         for k, o in zip(ks, out, strict=True):
-            if o[3] is not None:
+            if o[3] is not None or keep:
                 self.jac[k] = o[3]
-        if keep and idx is None:
+        if keep:
             self.warm[:self.n] = list(xs)
+            self.base_jac = list(self.jac[:self.n])
         return sse, xs, [o[2] for o in out]
+
+    def restart(self):
+        """Every window's carried Jacobian back to the current model's (:meth:`evaluate` with ``keep``; the
+        screening stretches' to none): a search then depends on the current model and its own candidate only,
+        not on which searches ran before it."""
+        self.jac = list(self.base_jac) + [None] * (len(self.problems) - self.n)
 
     def evaluate_at(self, eff, flow, xs, idx=None):
         """Per-window SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients) with each window's own

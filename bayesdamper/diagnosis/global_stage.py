@@ -6,12 +6,14 @@ one start: :func:`global_starts` builds starts from the residual's signature and
 pairs, the pressure at the residual's onset, quantiles and the range of the transients' |Δp|), and
 :func:`_distinct_best` picks the distinct ones to refine (:func:`bayesdamper.diagnosis.candidates.fit_joint`).
 :func:`bound_flags` reports the parameters that end on a bound of their search (there the form does not fit the
-data as parametrised); :func:`search_cost` tallies the search's cost per stage over the process.
+data as parametrised); :func:`search_cost` tallies the search's cost per stage over the process, and
+:func:`search_cost_by_step` the select-and-refit loop's per step (:func:`search_step`).
 """
 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -288,6 +290,25 @@ def _distinct_best(points: list[np.ndarray], values: list[float], narrow: list[i
 
 
 _COST: dict = {}
+_COST_BY_STEP: dict = {}
+_STEP: list = []  # the loop's open step: [name, seconds counted from]
+
+
+def search_step(name: str | None) -> None:
+    """Close the select-and-refit loop's open step (its wall time counted) and open the step ``name`` (None: no
+    further step): the profile searches until the next call are counted in it (:func:`search_cost_by_step`)."""
+    now = time.perf_counter()
+    if _STEP:
+        t = _COST_BY_STEP.setdefault(_STEP[0], {"s": 0.0, "evaluations": 0, "fits": 0})
+        t["s"] += now - _STEP[1]
+    _STEP[:] = [name, now] if name is not None else []
+
+
+def search_cost_by_step() -> dict:
+    """The select-and-refit loop's wall time per step since the process started (or :func:`reset_search_cost`), with
+    the profile searches run in each and their evaluations: ``{step: {"s", "evaluations", "fits"}}``
+    (:func:`search_step`)."""
+    return {k: dict(v) for k, v in _COST_BY_STEP.items()}
 
 
 def search_cost() -> dict:
@@ -299,8 +320,10 @@ def search_cost() -> dict:
 
 
 def reset_search_cost() -> None:
-    """Start :func:`search_cost`'s tally afresh."""
+    """Start :func:`search_cost`'s and :func:`search_cost_by_step`'s tallies afresh."""
     _COST.clear()
+    _COST_BY_STEP.clear()
+    _STEP.clear()
 
 
 def _tally(cost: dict) -> None:
@@ -308,4 +331,8 @@ def _tally(cost: dict) -> None:
         t = _COST.setdefault(stage, {"s": 0.0, "evaluations": 0, "fits": 0})
         t["s"] += c["s"]
         t["evaluations"] += c["evaluations"]
+        t["fits"] += 1
+    if _STEP:
+        t = _COST_BY_STEP.setdefault(_STEP[0], {"s": 0.0, "evaluations": 0, "fits": 0})
+        t["evaluations"] += sum(c["evaluations"] for c in cost.values())
         t["fits"] += 1

@@ -23,16 +23,23 @@ effect may explain what an earlier one approximated).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
 from bayesdamper.diagnosis.attribution import FOLD_ITER as LOVO_FOLD_ITER
 from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
-from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint, pooled_j, search_params
-from bayesdamper.diagnosis.findings import findings_text
-from bayesdamper.diagnosis.residual import STRUCTURE_ALPHA
-from bayesdamper.diagnosis.unnamed import effect_reading
+from bayesdamper.diagnosis.candidates import (
+    GLOBAL_LM_ITER,
+    LM_ITER,
+    CandidateSpec,
+    effective_sizes,
+    fit_joint,
+    pooled_j,
+    search_params,
+)
+from bayesdamper.diagnosis.global_stage import search_step
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
 
@@ -48,104 +55,6 @@ MAX_ROUNDS = 3
 #: option selected are computed at its optimum once it is selected (two re-fits of every window per parameter, and
 #: about 2 n² for the marginal intervals of n parameters, spared for every option that is not).
 NO_INTERVALS = -math.inf
-
-
-def report_text(d: dict) -> str:
-    """A short plain-text account of what the diagnosis found."""
-    s = d["structure_before"]["summary"]
-    lines = [f"Diagnosis of {d['dataset']!r}: plateau noise {d['noise_N']:.1f} N.",
-             f"Baseline eq. (7): pooled J = {d['baseline']['J_pooled']:.4f}; {s['n_structured']} of "
-             f"{s['n_transients']} transient residuals are structured (F test, alpha {STRUCTURE_ALPHA}); "
-             f"residual rms grows with speed as v^{s['rms_vs_speed_log_slope']:.2f}, centroid "
-             f"{s['median_t_centroid_s']:.2f} s after the step, dominant frequency "
-             f"{s['median_peak_frequency_Hz']:.2f} Hz."]
-    off = d.get("stage1_offset_N")
-    if off:
-        lines.append(f"Stage 1: the plateaus hold a constant force offset F_0 = {off['value']:.1f} ± {off['se']:.1f} N "
-                     f"(an unzeroed load cell or a preload; eq. (4) alone needed {', '.join(off['held_at_zero'])} "
-                     "held at 0); the windows' baseline has no offset, the candidates test it (load_cell_offset).")
-    sig = d.get("residual_dynamics") or {}
-    if sig.get("summary"):
-        lines.append(f"Residual dynamics (leave-one-speed-out, from the model's own signals): {sig['summary']}.")
-        cb, ca = sig.get("cross_correlation_before"), sig.get("cross_correlation_after")
-        if cb and ca:
-            lines.append(f"Residual-{cb['driver']} cross-correlation outside its 95 % band at "
-                         f"{cb['fraction_outside']:.0%} of lags before, {ca['fraction_outside']:.0%} after.")
-    if d["candidates"]:
-        ranked = ", ".join(f"{c['effect']} ({c['score']:+.0f})" for c in d["candidates"][:8])
-        lines.append(f"Candidates, first round, by delta-BIC_eff (select <= {SELECT_DELTA_BIC:g}): {ranked}"
-                     + (f" and {len(d['candidates']) - 8} more" if len(d["candidates"]) > 8 else "") + ".")
-        if d.get("rounds"):
-            lines.append(f"Rule: {d['rounds'][0].get('rule', '')}.")
-    for r in d.get("rounds", []):
-        for c in r["candidates"]:
-            if "lovo" in c:
-                lines.append(f"  round {d['rounds'].index(r) + 1}: {c['effect']}: leave-velocities-out gain "
-                             f"{c['lovo']['gain']:+.1f} (se {c['lovo']['se']:.1f}), J {c['J_pooled']:.4f}"
-                             + (" <- selected" if c["effect"] == r.get("selected") else ""))
-            if "against_runner_up" in c:
-                a = c["against_runner_up"]
-                lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
-                             f"(se {a['se']:.1f})")
-    for r in d.get("rounds", []):
-        lr = r.get("last_resort")
-        if lr:
-            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f})" if "gain_over" in x
-                               else x["effect"] for x in lr["rivals"]) or "none fitted"
-            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gain over "
-                         f"each, named only above {lr['margin_se']:g} se): {rivals}: "
-                         + ("named" if lr["kept"] else "not named")
-                         + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
-                            if lr["indistinguishable_from"] else "."))
-    for r in (d.get("rounds") or [])[-1:]:
-        for b in r.get("backward_check") or []:
-            lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "
-                         f"{b['delta_BIC_eff']:+.0f}, J -{b['J_reduction']:.0%}): a later effect explains it.")
-    if d["selected"]:
-        for label in d["selected"]:
-            name = label.split("@", 1)[0]
-            values = d["selected_params"][name]
-            shown = {k: v for k, v in values.items() if k not in ("driver", "law", "placement")}
-            vals = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
-            lines.append(f"Selected: {label} ({vals}): {effect_reading(label, values, EFFECTS[name].description)}")
-    else:
-        passing = [c for c in d["candidates"] if c.get("supported")]
-        lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
-                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J." if not passing else
-                     f"Selected: none - {', '.join(c['effect'] for c in passing)} "
-                     f"{'passes' if len(passing) == 1 else 'pass'} delta-BIC_eff <= "
-                     f"{SELECT_DELTA_BIC:g} and a {MIN_J_REDUCTION:.0%} reduction of the pooled J in sample but "
-                     "not the held-out speeds.")
-        if d["candidates"]:
-            c = d["candidates"][0]
-            if c.get("supported") and "lovo" in c:
-                folds = ", ".join(f"{g:+.0f}" for g in c["lovo"]["per_fold"])
-                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
-                             f"-{c.get('J_reduction', float('nan')):.0%}) is supported in sample but does not "
-                             f"predict every held-out speed better (folds {folds}).")
-            else:
-                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
-                             f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
-                             "the library's effects reproduces it.")
-    lines += [f"Finding: {x}" for x in findings_text(d)]
-    kinds = s.get("parameters_by_kind_median", {})
-    if len(kinds) == 2:
-        ini, rev = kinds["initial"], kinds["reversal"]
-        lines.append(f"Median p_R: {ini['p_R_Pa'] / 1e6:.2f} MPa from starts at rest vs {rev['p_R_Pa'] / 1e6:.2f} MPa "
-                     f"from reversals (alpha_V {ini['alpha_V']:.0f} vs {rev['alpha_V']:.0f}): one (alpha_V, p_R) "
-                     "pair does not describe both kinds of step.")
-    split = d.get("p_R_split", {})
-    if split.get("before") and split.get("after") and d["selected"]:
-        b, a = split["before"], split["after"]
-        lines.append(f"p_R split (rest vs reversal): before {b['initial_Pa'] / 1e6:.2f} vs "
-                     f"{b['reversal_Pa'] / 1e6:.2f} MPa, after {a['initial_Pa'] / 1e6:.2f} vs "
-                     f"{a['reversal_Pa'] / 1e6:.2f} MPa: "
-                     + ("closes" if a["agrees"] else "does not close") + ".")
-    lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f} at the "
-                 "posterior medians" + (f"; at the least-squares optima {d['baseline']['J_pooled_ls']:.4f} -> "
-                                        f"{d['final']['J_pooled_ls']:.4f}" if "J_pooled_ls" in d["final"] else "")
-                 + ".")
-    return "\n".join(lines)
 
 
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
@@ -211,15 +120,15 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                    velocities: list[float] | None = None) -> tuple[list, dict, list]:
     """The select-and-refit loop (module docstring of :mod:`bayesdamper.diagnosis.attribution` for the evidence).
 
-    Each round: every remaining candidate is fitted (after the first round screened: its grid's best point with
-    the effects already selected held at their values); the :data:`PAIR_FROM` best are re-fitted jointly with the
-    selected effects (those re-fitted too), and pairs of them are fitted jointly. Only joint fits are options. An option
-    (single or pair) is *supported* by the present criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it
-    lowers the pooled J by >= :data:`MIN_J_REDUCTION`. For the :data:`LOVO_OPTIONS` best supported options
-    by ΔBIC_eff, and the best other option as the runner-up, the leave-velocities-out gain over the current
-    model is computed (nothing when no option is supported); the rule selects, among the
-    supported options whose gain exceeds :data:`LOVO_SE` standard errors, the one with the largest gain.
-    Otherwise the round ends with "none".
+    Each round: every remaining candidate is fitted (after the first round screened: its grid's best point with the
+    effects already selected held at their values, the grid holding its optimum of the round before); the
+    :data:`PAIR_FROM` best are re-fitted jointly with the selected effects (those re-fitted too), and pairs of them
+    are fitted jointly. Only joint fits are options. An option (single or pair) is *supported* by the present
+    criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it lowers the pooled J by >= :data:`MIN_J_REDUCTION`.
+    For the :data:`LOVO_OPTIONS` best supported options by ΔBIC_eff, and the best other option as the runner-up, the
+    leave-velocities-out gain over the current model is computed (nothing when no option is supported); the rule
+    selects, among the supported options whose gain exceeds :data:`LOVO_SE` standard errors, the one with the
+    largest gain. Otherwise the round ends with "none".
 
     ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine`; ``names``: effect names or
     :class:`~bayesdamper.diagnosis.candidates.CandidateSpec`; ``forces``: the measured forces;
@@ -229,6 +138,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     """
     specs = {(n.label if isinstance(n, CandidateSpec) else n): (n if isinstance(n, CandidateSpec) else CandidateSpec(n))
              for n in names}
+    search_step("current model")
     sse, xs, resid = engine.evaluate(effect_argument({}), None, keep=True)
     current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     selected: list[str] = []
@@ -238,6 +148,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     # the paper's own simplification first: the two-state physics, then the library, the generic forms last
     remaining = sorted(specs, key=lambda lab: (specs[lab].effect != TWO_STATE, _generic(lab, specs)))
     folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
+    earlier: dict = {}  # each candidate's optimum in the round before: a point of its next screen's grid
     for rnd in range(MAX_ROUNDS):
         if not remaining:
             break
@@ -245,15 +156,21 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         j_cur = pooled_j(current["resid"], forces)
         start = {sp.label: fixed[sp.effect] for sp in sel_specs}
         fits = []
+        search_step("candidates screened with the selected effects held" if sel_specs else "candidates searched")
         for label in remaining:
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
-            # after the first round: screened with the selected effects held at their values, by the grid alone ...
-            fits.append(fit_joint(engine, [specs[label]], {}, fixed, current["sse"], n_eff, flow_for,
+            # after the first round: screened with the selected effects held at their values, by the grid alone,
+            # its optimum of the round before among the grid's points ...
+            spec = specs[label]
+            if label in earlier:
+                spec = dataclasses.replace(spec, points=(earlier[label],))
+            fits.append(fit_joint(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
                                   effect_argument, grid_only=bool(sel_specs), intervals_to=NO_INTERVALS))
             progress.advance()
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
             held = {c.effect for c in fits}
+            search_step("the best re-fitted with the selected effects")
             for c in sorted((c for c in fits if c.delta_bic < 0), key=lambda c: c.delta_bic)[:PAIR_FROM]:
                 progress(f"diagnose: round {rnd + 1}, re-fitting {c.effect} jointly with {', '.join(selected)}")
                 st = dict(start)
@@ -263,6 +180,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 held.discard(c.effect)
         singles = sorted(fits, key=lambda c: c.delta_bic)
         seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
+        search_step("pairs")
         for i, a in enumerate(seeds):
             for b in seeds[i + 1:]:
                 if specs[a.effect].effect == specs[b.effect].effect:
@@ -275,8 +193,11 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                       n_eff, flow_for, effect_argument, new=(a.effect, b.effect),
                                       intervals_to=NO_INTERVALS))
         if not sel_specs:
+            search_step("two-state pairs")
             fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
         fits.sort(key=lambda c: c.delta_bic)
+        earlier = {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in fits
+                   if len(c.labels) == 1 and c.labels[0] in specs and specs[c.labels[0]].effect in c.effects}
         rows = [_option_row(c, j_cur) for c in fits]
         check_pairs(rows)
         for row in rows:
@@ -284,6 +205,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 row["supported"] = False
                 row["held_selected"] = True
         lovo_cache: dict = {}
+        search_step("leave-velocities-out folds")
         for row in rows:
             row["passes"] = False
         if folds is not None and any(r["supported"] for r in rows):
@@ -308,6 +230,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         last_resort = None
         if best is not None and _generic(best["effect"], specs):
             progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
+            search_step("generic option against the physical ones")
             best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
                                                     current["sse"], n_eff, flow_for, lovo_cache)
         if best is not None and rival is not None and "_lovo" in best and rival is not best:
@@ -331,6 +254,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         st = {sp.label: fit.effects[sp.effect] for sp in cand}
         several = sum(len(search_params(sp)) for sp in cand) > 1
         progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
+        search_step("the selection's intervals and re-fit")
         best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
                                    new=fit.labels, max_iter=0, marginal=several).params
         best["intervals"] = ("marginal: inverse of the profile likelihood's Gauss-Newton information" if several
@@ -345,10 +269,12 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         sse, xs, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)
         current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     if len(selected) > 1:
+        search_step("backward check")
         selected, sel_specs, fixed, dropped = backward_check(engine, selected, sel_specs, fixed, current, forces,
                                                              flow_for, progress)
         if rounds:
             rounds[-1]["backward_check"] = dropped
+    search_step(None)
     return selected, fixed, rounds
 
 
@@ -363,7 +289,9 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone, also from its
     own optimum there with the two-state model at the registry's defaults (neither was fitted with the other); and
     with the two-state model refilling (:data:`REFILL_START`), from the screen's point and with the candidate
-    searched afresh on the refilling model (its grid and global stage, no start). The best fit is the option: a
+    searched afresh on the refilling model (its grid and global stage, no start). Each start is refined for
+    :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
+    budget. The best fit is the option: a
     valve's profile has several basins, and the screen's coarse grid may start it in the wrong one; a two-state model
     that fits badly alone ends at no refill, where the refill's profile is flat, and the valve that best fits the
     refilling model can lie in another basin than the one the screen found on the model without refill.
@@ -402,10 +330,18 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         # model, whose best valve can lie in another basin than the one screened on the model without refill
         refilling = {**held[TWO_STATE], REFILL: REFILL_START}
         starts += [(refilling, c.effects[eff]), (refilling, None)]
+        # each start refined for GLOBAL_LM_ITER iterations, the best then to the search's budget (as a search
+        # refines its own global starts)
         tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
                            {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
-                           {}, current_sse, n_eff, flow_for, effect_argument, new=pair, intervals_to=NO_INTERVALS)
+                           {}, current_sse, n_eff, flow_for, effect_argument, new=pair, max_iter=GLOBAL_LM_ITER,
+                           intervals_to=NO_INTERVALS)
                  for v_ts, v in starts]
+        lead = min(tried, key=lambda f: f.delta_bic)
+        tried.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
+                               {pair[0]: lead.effects[TWO_STATE], pair[1]: lead.effects[eff]}, {}, current_sse,
+                               n_eff, flow_for, effect_argument, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER,
+                               intervals_to=NO_INTERVALS))
         earlier = have.get(frozenset(pair))
         best = min(tried + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
         if earlier is None:

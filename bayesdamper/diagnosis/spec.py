@@ -73,6 +73,9 @@ class CandidateSpec:
     thresholds : tuple
         ``(Δp [Pa], ...)``: pressures at which part 1 found the residual to set in (its dead zone in Δp), starts
         of the global stage for a threshold pressure.
+    points : tuple
+        ``({param: value}, ...)``: whole points added to the grid stage (a candidate's optimum in an earlier round
+        of the loop, where its screen in a later round starts looking).
     """
 
     label: str
@@ -82,6 +85,7 @@ class CandidateSpec:
     starts: dict = dataclasses.field(default_factory=dict)
     poles: tuple = ()
     thresholds: tuple = ()
+    points: tuple = ()
 
     @property
     def effect(self) -> str:

@@ -4,7 +4,7 @@ before and after, and the settings and provenance — the content of ``diagnosis
 Findings the report must state: a selected effect's parameter that ends on a bound of its search (the form does not
 fit the data as parametrised: its value is not a result; :func:`bound_findings`), and every test speed (or kind of
 step at a speed) whose J is worse with the selected effects than without (:func:`j_by_speed`). :func:`findings_text`
-words both for the report.
+words both for the report; :func:`report_text` gives the whole diagnosis in a few lines of text.
 """
 
 from __future__ import annotations
@@ -21,11 +21,14 @@ from bayesdamper.diagnosis.calibrated import (
     SEARCH_MIN_S,
 )
 from bayesdamper.diagnosis.candidates import CandidateSpec, pooled_j, reset_search_cost, search_cost, spec_bound_flags
-from bayesdamper.diagnosis.findings import findings_text  # noqa: F401 - re-exported
-from bayesdamper.diagnosis.loop import SELECT_DELTA_BIC
+from bayesdamper.diagnosis.findings import findings_text
+from bayesdamper.diagnosis.global_stage import search_cost_by_step
+from bayesdamper.diagnosis.loop import MIN_J_REDUCTION, SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
 from bayesdamper.diagnosis.residual import summarise_structure as _summarise_structure
+from bayesdamper.diagnosis.unnamed import effect_reading
 from bayesdamper.inference.drift import drift_summary
+from bayesdamper.physics.effects import EFFECTS
 
 __all__ = ["GENERIC", "annotate_bounds", "bound_findings", "findings_text", "j_by_speed", "p_r_split", "pooled_j_ls",
            "summarise_diagnosis", "test_speeds"]
@@ -137,10 +140,11 @@ def annotate_bounds(rounds: list, names: list) -> None:
             row["at_bound"] = flags
 
 
-def _take_search_cost() -> dict:
-    """The profile searches' cost per stage so far (:func:`bayesdamper.diagnosis.candidates.search_cost`), the tally
+def _take_search_cost() -> tuple[dict, dict]:
+    """The profile searches' cost per stage so far (:func:`bayesdamper.diagnosis.candidates.search_cost`) and the
+    select-and-refit loop's per step (:func:`bayesdamper.diagnosis.global_stage.search_cost_by_step`), the tallies
     then started afresh for the next diagnosis of the process."""
-    out = search_cost()
+    out = search_cost(), search_cost_by_step()
     reset_search_cost()
     return out
 
@@ -199,10 +203,11 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
                                     "flow coefficients held at the baseline's",
                    "candidates_J": "the candidates' J are over the search's samples; J before and after are over "
                                    "every sample",
-                   "cost_by_stage": _take_search_cost(),
+                   **dict(zip(("cost_by_stage", "cost_by_step"), _take_search_cost(), strict=True)),
                    "cost_note": "seconds and evaluations (re-fits of every window of a stage's objective) of the "
                                 "profile searches per stage since the process's previous diagnosis was summarised "
-                                "(a diagnose command: this run)"},
+                                "(a diagnose command: this run); per step of the select-and-refit loop its wall "
+                                "time, the searches run in it and their evaluations"},
         "final_segments": final_entries,
         "settings": settings.as_dict(), "final_settings": final_settings.as_dict(), "seed": seed,
         "effects_considered": [getattr(n, "label", n) for n in names],
@@ -213,3 +218,100 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
         "provenance": prov,
     }
 
+
+def report_text(d: dict) -> str:
+    """A short plain-text account of what the diagnosis found."""
+    s = d["structure_before"]["summary"]
+    lines = [f"Diagnosis of {d['dataset']!r}: plateau noise {d['noise_N']:.1f} N.",
+             f"Baseline eq. (7): pooled J = {d['baseline']['J_pooled']:.4f}; {s['n_structured']} of "
+             f"{s['n_transients']} transient residuals are structured (F test, alpha {STRUCTURE_ALPHA}); "
+             f"residual rms grows with speed as v^{s['rms_vs_speed_log_slope']:.2f}, centroid "
+             f"{s['median_t_centroid_s']:.2f} s after the step, dominant frequency "
+             f"{s['median_peak_frequency_Hz']:.2f} Hz."]
+    off = d.get("stage1_offset_N")
+    if off:
+        lines.append(f"Stage 1: the plateaus hold a constant force offset F_0 = {off['value']:.1f} ± {off['se']:.1f} N "
+                     f"(an unzeroed load cell or a preload; eq. (4) alone needed {', '.join(off['held_at_zero'])} "
+                     "held at 0); the windows' baseline has no offset, the candidates test it (load_cell_offset).")
+    sig = d.get("residual_dynamics") or {}
+    if sig.get("summary"):
+        lines.append(f"Residual dynamics (leave-one-speed-out, from the model's own signals): {sig['summary']}.")
+        cb, ca = sig.get("cross_correlation_before"), sig.get("cross_correlation_after")
+        if cb and ca:
+            lines.append(f"Residual-{cb['driver']} cross-correlation outside its 95 % band at "
+                         f"{cb['fraction_outside']:.0%} of lags before, {ca['fraction_outside']:.0%} after.")
+    if d["candidates"]:
+        ranked = ", ".join(f"{c['effect']} ({c['score']:+.0f})" for c in d["candidates"][:8])
+        lines.append(f"Candidates, first round, by delta-BIC_eff (select <= {SELECT_DELTA_BIC:g}): {ranked}"
+                     + (f" and {len(d['candidates']) - 8} more" if len(d["candidates"]) > 8 else "") + ".")
+        if d.get("rounds"):
+            lines.append(f"Rule: {d['rounds'][0].get('rule', '')}.")
+    for r in d.get("rounds", []):
+        for c in r["candidates"]:
+            if "lovo" in c:
+                lines.append(f"  round {d['rounds'].index(r) + 1}: {c['effect']}: leave-velocities-out gain "
+                             f"{c['lovo']['gain']:+.1f} (se {c['lovo']['se']:.1f}), J {c['J_pooled']:.4f}"
+                             + (" <- selected" if c["effect"] == r.get("selected") else ""))
+            if "against_runner_up" in c:
+                a = c["against_runner_up"]
+                lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
+                             f"(se {a['se']:.1f})")
+    for r in d.get("rounds", []):
+        lr = r.get("last_resort")
+        if lr:
+            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f})" if "gain_over" in x
+                               else x["effect"] for x in lr["rivals"]) or "none fitted"
+            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gain over "
+                         f"each, named only above {lr['margin_se']:g} se): {rivals}: "
+                         + ("named" if lr["kept"] else "not named")
+                         + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
+                            if lr["indistinguishable_from"] else "."))
+    for r in (d.get("rounds") or [])[-1:]:
+        for b in r.get("backward_check") or []:
+            lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "
+                         f"{b['delta_BIC_eff']:+.0f}, J -{b['J_reduction']:.0%}): a later effect explains it.")
+    if d["selected"]:
+        for label in d["selected"]:
+            name = label.split("@", 1)[0]
+            values = d["selected_params"][name]
+            shown = {k: v for k, v in values.items() if k not in ("driver", "law", "placement")}
+            vals = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
+            lines.append(f"Selected: {label} ({vals}): {effect_reading(label, values, EFFECTS[name].description)}")
+    else:
+        passing = [c for c in d["candidates"] if c.get("supported")]
+        lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
+                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J." if not passing else
+                     f"Selected: none - {', '.join(c['effect'] for c in passing)} "
+                     f"{'passes' if len(passing) == 1 else 'pass'} delta-BIC_eff <= "
+                     f"{SELECT_DELTA_BIC:g} and a {MIN_J_REDUCTION:.0%} reduction of the pooled J in sample but "
+                     "not the held-out speeds.")
+        if d["candidates"]:
+            c = d["candidates"][0]
+            if c.get("supported") and "lovo" in c:
+                folds = ", ".join(f"{g:+.0f}" for g in c["lovo"]["per_fold"])
+                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
+                             f"-{c.get('J_reduction', float('nan')):.0%}) is supported in sample but does not "
+                             f"predict every held-out speed better (folds {folds}).")
+            else:
+                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
+                             f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
+                             "the library's effects reproduces it.")
+    lines += [f"Finding: {x}" for x in findings_text(d)]
+    kinds = s.get("parameters_by_kind_median", {})
+    if len(kinds) == 2:
+        ini, rev = kinds["initial"], kinds["reversal"]
+        lines.append(f"Median p_R: {ini['p_R_Pa'] / 1e6:.2f} MPa from starts at rest vs {rev['p_R_Pa'] / 1e6:.2f} MPa "
+                     f"from reversals (alpha_V {ini['alpha_V']:.0f} vs {rev['alpha_V']:.0f}): one (alpha_V, p_R) "
+                     "pair does not describe both kinds of step.")
+    split = d.get("p_R_split", {})
+    if split.get("before") and split.get("after") and d["selected"]:
+        b, a = split["before"], split["after"]
+        lines.append(f"p_R split (rest vs reversal): before {b['initial_Pa'] / 1e6:.2f} vs "
+                     f"{b['reversal_Pa'] / 1e6:.2f} MPa, after {a['initial_Pa'] / 1e6:.2f} vs "
+                     f"{a['reversal_Pa'] / 1e6:.2f} MPa: "
+                     + ("closes" if a["agrees"] else "does not close") + ".")
+    lines.append(f"Pooled J before {d['baseline']['J_pooled']:.4f} -> after {d['final']['J_pooled']:.4f} at the "
+                 "posterior medians" + (f"; at the least-squares optima {d['baseline']['J_pooled_ls']:.4f} -> "
+                                        f"{d['final']['J_pooled_ls']:.4f}" if "J_pooled_ls" in d["final"] else "")
+                 + ".")
+    return "\n".join(lines)

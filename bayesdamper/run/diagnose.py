@@ -26,10 +26,10 @@ from bayesdamper.diagnosis.calibrated import (
 )
 from bayesdamper.diagnosis.comparison import DEFAULT_MODELS, compare_models, comparison_text
 from bayesdamper.diagnosis.engine import ProfileEngine
-from bayesdamper.diagnosis.loop import report_text, select_effects
+from bayesdamper.diagnosis.loop import select_effects
 from bayesdamper.diagnosis.residual import describe_residual, structure_test, summarise_structure
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
-from bayesdamper.diagnosis.summary import GENERIC, summarise_diagnosis
+from bayesdamper.diagnosis.summary import GENERIC, report_text, summarise_diagnosis
 from bayesdamper.diagnosis.sysid import apply_law
 from bayesdamper.diagnosis.unnamed import FLOW_DRIVERS, library_candidates, unnamed_candidates
 from bayesdamper.inference.sampling import SamplerSettings
