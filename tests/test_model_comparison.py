@@ -229,7 +229,7 @@ def test_result_is_json_and_text(synthetic):
 def test_a_search_depends_on_the_current_model_not_on_the_searches_before_it(synthetic):
     """Every search starts each window's re-fit from the current model's Jacobian (ProfileEngine.restart), not the
     one the last search left: the same candidate searched before and after another ends at the same optimum to the
-    last bit (with the Jacobians carried across searches the second search took another path)."""
+    last bit (a Jacobian carried over from another search would change its path)."""
     from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint
 
     problems, _, _, truth = synthetic
