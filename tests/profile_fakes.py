@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -26,6 +27,13 @@ class FakeProfileEngine:
     @property
     def jac(self) -> list:
         return [None] * len(self.problems)
+
+    def restart(self) -> None:
+        """Nothing is carried from one search to the next."""
+
+    def remembering(self):
+        """No outcome is re-used."""
+        return contextlib.nullcontext(self)
 
     def sensitivities(self, effs, flows, hs, idx, xs, resid):
         perturbed = [self.evaluate(e, f, idx=idx)[2] for e, f in zip(effs, flows, strict=True)]

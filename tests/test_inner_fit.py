@@ -135,6 +135,9 @@ class _SeparableEngine:
         self.screen = None
         self.n_evaluate = 0
 
+    def restart(self):
+        """Nothing is carried from one search to the next."""
+
     def _fit(self, k, e):
         psi0, psi1 = e["valve_dynamics"]["time_constant_s"], e["valve_dynamics"]["opening_pressure_Pa"] * 1e-5
         basis = np.column_stack([np.ones_like(self.t), np.exp(-psi0 * self.t)])

@@ -20,7 +20,6 @@ runner-up the same is done on the paired differences of the two candidates' d_g.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass
 
@@ -124,9 +123,7 @@ def velocity_folds(velocities: list[float]) -> list[np.ndarray]:
 
 def _fold_sse(engine, specs, values, fixed, current_sse, n_eff, flow_for, pack, train, test):
     """Held-out SSE of the model ``specs`` re-fitted on ``train``."""
-    restart = getattr(engine, "restart", None)
-    if restart is not None:  # the held-out re-fits start from the current model's Jacobians (ProfileEngine.restart)
-        restart()
+    engine.restart()  # the held-out re-fits start from the current model's Jacobians (ProfileEngine.restart)
     if not specs:
         e = dict(fixed)
     else:
@@ -166,7 +163,7 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
     """
     all_idx = np.arange(getattr(engine, "n", len(engine.problems)))
     # the folds' fits all start from the full-data optimum: their first re-fits and sensitivities are shared
-    with engine.remembering() if hasattr(engine, "remembering") else contextlib.nullcontext():
+    with engine.remembering():
         d = _fold_gains(engine, folds, all_idx, cand_specs, cand_values, cur_specs, cur_values, current_sse, n_eff,
                         flow_for, pack, cache)
     d = np.array(d)

@@ -176,9 +176,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         selected option's intervals at its optimum with ``max_iter`` 0, sparing the information's re-fit and
         solves for every other option).
     """
-    restart = getattr(engine, "restart", None)
-    if restart is not None:  # every search starts from the current model's Jacobians, whatever ran before it
-        restart()
+    engine.restart()  # every search starts from the current model's Jacobians, whatever ran before it
     groups = [(spec, search_params(spec)) for spec in specs]
     flat = [(spec, p) for spec, ps in groups for p in ps]
     lo = np.array([min(_transform(p, p.lower), _transform(p, p.upper)) for _, p in flat])

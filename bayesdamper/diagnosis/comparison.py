@@ -264,10 +264,7 @@ def compare_models(engine, forces: list[np.ndarray], kinds: Sequence[str], speed
     say = progress or (lambda msg: None)
     n = int(getattr(engine, "n", len(engine.problems)))
     if warm is not None:
-        engine.warm[:n] = [np.array(w, dtype=float) for w in warm]
-        if hasattr(engine, "base_jac"):  # the current model's Jacobians were at other warm starts
-            engine.base_jac = [None] * n
-            engine.restart()
+        engine.set_warm(warm[:n])
     kinds = list(kinds)
     norms = np.array([float(f @ f) for f in forces])
     log_speeds = np.log(np.abs(np.asarray(speeds, dtype=float)))

@@ -232,6 +232,14 @@ class ProfileEngine:
         not on which searches ran before it."""
         self.jac = list(self.base_jac) + [None] * (len(self.problems) - self.n)
 
+    def set_warm(self, xs) -> None:
+        """Each window's warm start: ``xs``, one x per window from the first. The current model's Jacobians
+        belonged to the warm starts before, so they are dropped (:meth:`restart`: every re-fit differences its
+        own) until :meth:`evaluate` with ``keep`` makes a model current again."""
+        self.warm[:len(xs)] = [np.array(x, dtype=float) for x in xs]
+        self.base_jac = [None] * self.n
+        self.restart()
+
     def evaluate_at(self, eff, flow, xs, idx=None):
         """Per-window SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients) with each window's own
         parameters GIVEN: ``xs`` one x per window of ``idx`` (None: all windows), solved once each, not re-fitted

@@ -299,8 +299,7 @@ def search_step(name: str | None) -> None:
     further step): the profile searches until the next call are counted in it (:func:`search_cost_by_step`)."""
     now = time.perf_counter()
     if _STEP:
-        t = _COST_BY_STEP.setdefault(_STEP[0], {"s": 0.0, "evaluations": 0, "fits": 0})
-        t["s"] += now - _STEP[1]
+        _row(_COST_BY_STEP, _STEP[0])["s"] += now - _STEP[1]
     _STEP[:] = [name, now] if name is not None else []
 
 
@@ -326,13 +325,18 @@ def reset_search_cost() -> None:
     _STEP.clear()
 
 
+def _row(table: dict, key: str) -> dict:
+    """``table``'s tally of ``key`` (seconds, evaluations, fits), started at zero."""
+    return table.setdefault(key, {"s": 0.0, "evaluations": 0, "fits": 0})
+
+
 def _tally(cost: dict) -> None:
     for stage, c in cost.items():
-        t = _COST.setdefault(stage, {"s": 0.0, "evaluations": 0, "fits": 0})
+        t = _row(_COST, stage)
         t["s"] += c["s"]
         t["evaluations"] += c["evaluations"]
         t["fits"] += 1
     if _STEP:
-        t = _COST_BY_STEP.setdefault(_STEP[0], {"s": 0.0, "evaluations": 0, "fits": 0})
+        t = _row(_COST_BY_STEP, _STEP[0])
         t["evaluations"] += sum(c["evaluations"] for c in cost.values())
         t["fits"] += 1

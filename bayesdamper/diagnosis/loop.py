@@ -265,7 +265,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         fixed = {k: dict(v) for k, v in fit.effects.items()}
         chosen = {specs[lab].effect for lab in fit.labels}
         remaining = [n for n in remaining if specs[n].effect not in chosen]
-        engine.warm[:len(fit.warm)] = list(fit.warm)
+        engine.set_warm(fit.warm)
         sse, xs, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)
         current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     if len(selected) > 1:
@@ -429,7 +429,7 @@ def backward_check(engine, selected: list, sel_specs: list, fixed: dict, current
         selected = [selected[i] for i in keep]
         sel_specs = [sel_specs[i] for i in keep]
         fixed = {k: dict(v) for k, v in red.effects.items()}
-        engine.warm[:len(red.warm)] = list(red.warm)
+        engine.set_warm(red.warm)
         sse, _, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)
         current = {"sse": sse, "resid": [r if r is not None else f for r, f in zip(resid, forces, strict=True)]}
     return selected, sel_specs, fixed, dropped
