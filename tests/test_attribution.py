@@ -69,7 +69,7 @@ def test_a_screened_grid_finds_the_same_optimum_and_scores_on_every_transient():
             self.screen = screen
             self.calls = []
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             k = np.arange(16) if idx is None else np.asarray(idx)
             self.calls.append(len(k))
             tau = eff["valve_dynamics"]["time_constant_s"]

@@ -74,7 +74,7 @@ def test_bound_flag_on_a_constructed_fit():
     class Engine(FakeProfileEngine):
         problems = [fake_problem(np.ones(40))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             tau = eff["actuator_lag"]["time_constant_s"]  # SSE falls towards a time constant beyond the 0.5 s bound
             sse = 40.0 * (0.2 + 0.8 / (1.0 + tau))
             return np.array([sse]), np.zeros((1, 2)), [np.full(40, math.sqrt(sse / 40.0))]
@@ -88,7 +88,7 @@ def test_bound_flag_on_a_constructed_fit():
     class GasEngine(FakeProfileEngine):
         problems = [fake_problem(np.ones(40))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             p = eff["two_state"]  # SSE falls towards an isothermal gas (κ 1, a physical limit) and towards G 1e-15
             sse = 40.0 * (0.2 + (p["polytropic_exponent"] - 0.9) ** 2 + 0.01 * math.log(p[
                 "refill_conductance_m3_per_s_Pa"] / 1e-16))
@@ -200,7 +200,7 @@ class _WellEngine(FakeProfileEngine):
 
     problems = [fake_problem(np.ones(50))]
 
-    def evaluate(self, eff, flow=None, keep=False, idx=None):
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
         p = eff["command_displacement"]
         f, z = p["bandwidth_Hz"], p["damping_ratio"]
         broad = math.exp(-math.log(f / 50.0) ** 2 - math.log(z / 0.95) ** 2)
@@ -215,7 +215,7 @@ class _BleedEngine(FakeProfileEngine):
 
     problems = [fake_problem(np.ones(50))]
 
-    def evaluate(self, eff, flow=None, keep=False, idx=None):
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
         eps = eff["poppet_valve"]["bleed_fraction"]
         sse = 40.0 - 39.0 * math.exp(-(math.log(eps) / 0.3) ** 2)
         return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
@@ -227,7 +227,7 @@ def test_a_valves_bleed_is_held_on_the_grid_and_searched_by_the_global_stage():
     evaluated = []
 
     class Counting(_BleedEngine):
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             evaluated.append(eff["poppet_valve"]["bleed_fraction"])
             return super().evaluate(eff, flow, keep, idx)
 
@@ -260,6 +260,69 @@ def test_global_stage_finds_the_narrow_well_a_single_start_misses(monkeypatch):
     monkeypatch.setattr(cand, "GLOBAL_REFINE", 1)
     one = _servo_fit(((2.2, 0.25),))
     assert one.j_pooled == pytest.approx(math.sqrt(10.0 / 50.0), rel=0.02)
+
+
+class _RoughWellEngine(_WellEngine):
+    """The well of :class:`_WellEngine`, whose rough values (a re-fit not finished, ``rough``) are 1.5 times the
+    exact ones (an upper bound, ordered as the exact ones), and whose fitted own parameters x are the point's own
+    coordinates (log f, log ζ): which point a re-fit started from is read off its ``start``."""
+
+    def __init__(self, honour_rough=True):
+        self.honour_rough = honour_rough
+        self.calls = []  # (z of the point, start given, rough) of the objective's evaluations
+        self._differencing = False
+
+    def sensitivities(self, effs, flows, hs, idx, xs, resid):
+        self._differencing = True  # the stand-in's sensitivities evaluate too: not the objective's evaluations
+        try:
+            return super().sensitivities(effs, flows, hs, idx, xs, resid)
+        finally:
+            self._differencing = False
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
+        sse, _, resid = super().evaluate(eff, flow, keep, idx)
+        p = eff["command_displacement"]
+        z = np.array([math.log(p["bandwidth_Hz"]), math.log(p["damping_ratio"])])
+        if not self._differencing:
+            self.calls.append((z, None if start is None else np.array(start[0]), rough))
+        if rough and self.honour_rough:
+            sse, resid = 1.5 * sse, [math.sqrt(1.5) * r for r in resid]
+        return sse, np.array([z]), resid
+
+
+@pytest.mark.parametrize("grid_only", [False, True])
+def test_a_grids_rough_values_rank_the_starts_and_never_score(grid_only):
+    """The grid's points are evaluated rough; every value that scores (the refinement's, the screen's, the fit's)
+    is exact: the fit, and a screen by the grid alone, score the same to the last bit as with an engine whose
+    rough values are exact (a rough value that scored would be off by N log 1.5, 20)."""
+    rough, exact = _RoughWellEngine(), _RoughWellEngine(honour_rough=False)
+    fits = [fit_joint(e, [CandidateSpec("command_displacement", poles=((2.2, 0.25),))], {}, {}, np.array([50.0]),
+                      np.array([50.0]), lambda e: None, lambda e: e, grid_only=grid_only) for e in (rough, exact)]
+    assert fits[0].delta_bic == fits[1].delta_bic
+    assert fits[0].effects == fits[1].effects
+    n_grid = fits[0].cost["grid"]["evaluations"]
+    assert n_grid >= 16 and all(r for _, _, r in rough.calls[:n_grid])
+    assert not rough.calls[-1][2]  # the score's evaluation
+    if not grid_only:
+        assert fits[0].j_pooled < 0.15  # the well, found by the refinement from the global stage's start
+
+
+def test_a_search_re_fits_each_point_from_the_nearest_point_it_has_evaluated():
+    """The first point is re-fitted from the current model's optimum (no ``start``); every later one from the own
+    parameters fitted at the nearest point evaluated before it, in units of each parameter's search range (no
+    intervals asked: their information re-fits the optimum on its own)."""
+    eng = _RoughWellEngine()
+    fit_joint(eng, [CandidateSpec("command_displacement", poles=((2.2, 0.25),))], {}, {}, np.array([50.0]),
+              np.array([50.0]), lambda e: None, lambda e: e, intervals_to=-math.inf)
+    ps = search_params(CandidateSpec("command_displacement"))
+    span = np.array([math.log(p.upper / p.lower) for p in ps])
+    assert eng.calls[0][1] is None
+    assert len(eng.calls) > 20
+    for i, (z, start, _) in enumerate(eng.calls[1:], 1):
+        earlier = [c[0] for c in eng.calls[:i]]
+        d = [float(np.sum(((e - z) / span) ** 2)) for e in earlier]
+        assert start is not None
+        assert float(np.sum(((start - z) / span) ** 2)) == pytest.approx(min(d), abs=1e-12)
 
 
 def test_global_starts_of_a_valve_from_poles_and_data():
@@ -316,7 +379,7 @@ def test_a_known_optimum_of_one_parameter_is_scored_there_without_a_search():
     class Engine(FakeProfileEngine):
         problems = [fake_problem(np.ones(40))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             tau = eff["actuator_lag"]["time_constant_s"]
             calls.append(tau)
             sse = 40.0 * (0.2 + 0.5 * math.log(tau / 0.05) ** 2)  # the optimum at 0.05 s, inside the box

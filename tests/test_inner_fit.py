@@ -113,9 +113,26 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
             return (r, True) if r is not None else (np.full(400, np.nan), False)
 
     E._PROBLEMS[:] = [Problem()]
-    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None))
+    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None))
     assert r is not None and x_hat[1] - 12.0 <= 0.1
     assert sse == pytest.approx(float(r @ r)) and sse < 0.9 * float(resid(start) @ resid(start))
+
+    # rough (a grid point's value): the re-fit's own best point, not finished by the fallbacks; its SSE is an upper
+    # bound of the finished one's, for the re-fit's solves alone
+    solves = []
+
+    class Counted(Problem):
+        def simulate_inner(self, x, eff, flow=None):
+            solves.append(1)
+            return super().simulate_inner(x, eff, flow)
+
+    E._PROBLEMS[:] = [Counted()]
+    x_rough, sse_rough, r_rough, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None))
+    own = refit(lambda x: guarded(np.asarray(x) - [5.0, 12.0]), start + [5.0, 12.0], *INNER_BOX)
+    assert own.converged is False  # the wall keeps the re-fit from converging within its solves
+    assert len(solves) == own.n_solves
+    assert sse_rough == pytest.approx(own.sse, rel=1e-12) and np.allclose(x_rough, own.x)
+    assert sse_rough >= sse
 
 
 class _SeparableEngine:
@@ -145,7 +162,7 @@ class _SeparableEngine:
         x, *_ = np.linalg.lstsq(basis, target, rcond=None)
         return x, basis @ x - target, basis
 
-    def evaluate(self, eff, flow=None, keep=False, idx=None):
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
         self.n_evaluate += 1
         ks = range(len(self.data)) if idx is None else [int(i) for i in idx]
         out = [self._fit(k, eff) for k in ks]
@@ -253,3 +270,44 @@ def test_profile_information_is_the_schur_complement_of_the_joint_information(mo
     np.testing.assert_allclose(np.diag(got), np.diag(want), rtol=0.03)
     # the conditional information (the transients' parameters held) is far larger: the projection matters here
     assert np.all(np.diag(np.linalg.inv(full[:2, :2])) < 0.1 * np.diag(want))
+
+
+def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
+    """A re-fit given a neighbour's optimum (``near``) starts from whichever of it and the warm start has the smaller
+    SSE, for one solve more: from the neighbour's optimum it needs fewer solves; a neighbour whose solve fails
+    (these effect values chatter there, say) or fits worse leaves the re-fit exactly as from the warm start."""
+    from bayesdamper.diagnosis import engine as E
+    from bayesdamper.inference.problem import INNER_BOX
+
+    resid = _decay(4)
+    shift = np.array([5.0, 12.0])  # the search's coordinates (log α_V, log p_R), inside INNER_BOX
+    solves = []
+
+    class Problem:
+        force = np.zeros(400)
+
+        def inner_box(self):
+            return INNER_BOX
+
+        def simulate_inner(self, x, eff, flow=None):
+            solves.append(np.array(x))
+            z = np.asarray(x) - shift
+            return (resid(z), True) if z[0] < 1.5 else (np.full(400, np.nan), False)  # fails beyond x0 = 1.5
+
+    E._PROBLEMS[:] = [Problem()]
+    warm = np.array([-1.0, -1.0]) + shift
+    opt = _reference(resid, np.zeros(2)).x + shift
+
+    def run(near):
+        solves.clear()
+        out = E._inner_fit((0, None, None, warm, None, False, near))
+        return out, len(solves)
+
+    (x_w, s_w, _, _), n_w = run(None)
+    (x_n, s_n, _, _), n_n = run(opt + 0.01)
+    assert s_n == pytest.approx(s_w, rel=1e-5) and np.allclose(x_n, x_w, atol=1e-3)
+    assert n_n < n_w
+    for bad in (np.array([2.0, 0.0]) + shift, np.array([1.4, 2.9]) + shift):  # fails there; fits worse there
+        (x_b, s_b, _, _), n_b = run(bad)
+        assert s_b == s_w and np.array_equal(x_b, x_w)
+        assert n_b == n_w + 1  # the neighbour's solve; the warm start's is not run twice

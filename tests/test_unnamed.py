@@ -79,7 +79,7 @@ def test_search_starts_find_a_narrow_optimum_the_coarse_grid_misses():
     class Engine(FakeProfileEngine):
         problems = [fake_problem(np.ones(50))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             p = eff["poppet_valve"]
             well = math.exp(-((math.log(p["natural_frequency_Hz"] / 3.0)) / 0.08) ** 2)
             sse = 50.0 * (1.0 - 0.9 * well) * (1.0 + 0.01 * math.log(p["span_Pa"] / 3e7) ** 2)
@@ -107,7 +107,7 @@ def test_a_screen_grid_holds_the_candidates_optimum_of_the_round_before():
     class Engine(FakeProfileEngine):
         problems = [fake_problem(np.ones(50))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             p = eff["poppet_valve"]
             well = math.exp(-((math.log(p["natural_frequency_Hz"] / 3.0)) / 0.08) ** 2)
             sse = 50.0 * (1.0 - 0.9 * well)
@@ -139,7 +139,7 @@ def test_stage_one_offset_starts_the_load_cell_offset_between_its_grid_points():
     class Engine(FakeProfileEngine):
         problems = [fake_problem(np.ones(50))]
 
-        def evaluate(self, eff, flow=None, keep=False, idx=None):
+        def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
             off = eff["load_cell_offset"]["offset_N"]
             sse = 10.0 + 40.0 * min(1.0, ((off - 180.0) / 180.0) ** 2)
             return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]

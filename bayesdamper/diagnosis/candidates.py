@@ -15,9 +15,13 @@ parameters appear in both and cancel).
 
 The search of ψ: a coarse grid (on a screening subset of the transients when there are many) picks the start; one
 parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem (variable
-projection, :func:`_profile_lm`). Each transient's re-fit carries its Jacobian from the last one of the search
-(:mod:`bayesdamper.diagnosis.inner_fit`); a search starts from the current model's
-(:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.restart`). The intervals come from the profile log-likelihood's
+projection, :func:`_profile_lm`). Each transient's re-fit starts from the current model's optimum or, where it fits
+better, from its optimum at the nearest point the search has evaluated, and carries its Jacobian from the last one
+of the search (:mod:`bayesdamper.diagnosis.inner_fit`); a
+search starts from the current model's optimum and Jacobians
+(:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.restart`). The grid's values only rank the starts: they are
+rough (a re-fit short of convergence gives its best point, an upper bound), and a point that scores is evaluated
+exactly. The intervals come from the profile log-likelihood's
 Gauss-Newton information at the optimum (:func:`~bayesdamper.diagnosis.engine.profile_information`).
 
 Global stage. Parameters whose profile has narrow basins — a natural frequency, a damping ratio, a threshold
@@ -202,28 +206,48 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
 
     detail: dict = {}  # z key -> (fitted (log α_V, log p_R), residuals) of the objective's transients
 
+    span = np.where(hi > lo, hi - lo, 1.0)
+    n_evaluated = [0]  # evaluations of the objectives (a grid point's rough value made exact counts again)
+
     def make_objective(rows, memo, score, keep_detail=False):
-        """``score(pooled SSE)`` of the transients ``rows`` at z (memoised; infeasible flow: INFEASIBLE)."""
-        def f(z):
+        """``score(pooled SSE)`` of the transients ``rows`` at z (memoised; infeasible flow: INFEASIBLE), exact and
+        rough: the rough one's re-fits are not finished by the fallbacks when they have not converged within their
+        solves (:meth:`ProfileEngine.evaluate`), so its value is an upper bound, enough to rank a grid's points; the
+        exact one evaluates such a point again. Each transient is re-fitted from its optimum at the nearest point
+        already evaluated (distance in units of each parameter's range) where that fits better than the current
+        model's optimum (:meth:`ProfileEngine.evaluate`): a search moving step by step re-fits from near where it
+        stands, and a grid point made exact from its own rough optimum."""
+        fitted: list = []  # (z, per-row optima) of the points evaluated
+        rough_keys: set = set()
+
+        def evaluate(z, rough):
             z = np.clip(np.asarray(z, dtype=float), lo, hi)
             key = tuple(np.round(z, 6))
-            if key not in memo:
-                e = effects_at(z)
-                try:
-                    flow = flow_for(e)
-                except BayesDamperError:  # e.g. friction larger than the plateau forces allow
-                    memo[key] = INFEASIBLE
-                    return memo[key]
-                sse, xs, resid = engine.evaluate(pack(e), flow, idx=rows)
-                memo[key] = score(max(float(np.sum(sse)), 1e-300))
-                if keep_detail:
-                    detail[key] = (xs, resid)
+            if key in memo and (rough or key not in rough_keys):
+                return memo[key]
+            e = effects_at(z)
+            try:
+                flow = flow_for(e)
+            except BayesDamperError:  # e.g. friction larger than the plateau forces allow
+                memo[key] = INFEASIBLE
+                return memo[key]
+            near = min(fitted, key=lambda p: float(np.sum(((p[0] - z) / span) ** 2)), default=None)
+            sse, xs, resid = engine.evaluate(pack(e), flow, idx=rows, start=None if near is None else near[1],
+                                             rough=rough)
+            n_evaluated[0] += 1
+            memo[key] = score(max(float(np.sum(sse)), 1e-300))
+            (rough_keys.add if rough else rough_keys.discard)(key)
+            fitted.append((z, xs))
+            if keep_detail:
+                detail[key] = (xs, resid)
             return memo[key]
-        return f
 
-    objective = make_objective(sel, cache, lambda s: float(n_total * math.log(s / cur)), keep_detail=True)
-    # the grid only picks the local search's start: on the screening subset when there is one
-    grid_objective = objective if screen is None else make_objective(screen, grid_cache, math.log)
+        return (lambda z: evaluate(z, False)), (lambda z: evaluate(z, True))
+
+    objective, rough_objective = make_objective(sel, cache, lambda s: float(n_total * math.log(s / cur)),
+                                                keep_detail=True)
+    # the grid only picks the local search's start (its values rough): on the screening subset when there is one
+    grid_objective = rough_objective if screen is None else make_objective(screen, grid_cache, math.log)[1]
 
     # starting point: given values, and a grid over the candidates without one
     z0 = np.zeros(len(flat))
@@ -265,7 +289,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
 
     def stage(name, **more):
         """Close a stage of the search's cost (seconds and evaluations since the last one)."""
-        now, n = time.perf_counter(), len(cache) + len(grid_cache)
+        now, n = time.perf_counter(), n_evaluated[0]
         cost[name] = {"s": now - clock[0], "evaluations": n - clock[1], **more}
         clock[:] = [now, n]
 
@@ -373,7 +397,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             stage("refine", starts=len(refine_from))
     d_hat = objective(z_hat)
     e_hat = effects_at(z_hat)
-    n_evals = len(cache) + len(grid_cache)
+    n_evals = n_evaluated[0]
     keys = [p.name if len(specs) == 1 else f"{spec.label}.{p.name}" for spec, p in flat]
     searched = [j for j, (spec, p) in enumerate(flat) if p.name not in _physical_limits(spec)]
     flags = bound_flags([(keys[j], flat[j][1]) for j in searched], np.clip(z_hat, lo, hi)[searched], lo[searched],

@@ -4,9 +4,11 @@ and the shared parameters' Levenberg-Marquardt refinement by variable projection
 A window's own parameters x are (log α_V, log p_R), plus the start force of a window that starts in motion and the
 flow coefficients of a data set without plateaus (:class:`~bayesdamper.inference.problem.EffectsProblem`).
 :class:`ProfileEngine` evaluates S_k(ψ), the per-window sums of squares of eq. (9) at their least-squares x, with
-worker processes; each re-fit carries its window's Jacobian from the last one of the same search
-(:mod:`bayesdamper.diagnosis.inner_fit`), and every search starts from the Jacobians at the current model's optimum
-(:meth:`ProfileEngine.restart`), so that what a search finds does not depend on which searches ran before it.
+worker processes; each re-fit starts from the current model's optimum or, where it fits better, from the window's
+optimum at a point its search has already evaluated, and carries its window's Jacobian from the last one of the
+same search (:mod:`bayesdamper.diagnosis.inner_fit`), and every search starts from the Jacobians at the current
+model's optimum (:meth:`ProfileEngine.restart`), so that what a search finds does not depend on which searches ran
+before it.
 :meth:`ProfileEngine.evaluate_at` solves every window once at given own parameters instead (a held-out prediction,
 :mod:`bayesdamper.diagnosis.comparison`). :func:`_profile_lm` refines the shared parameters of a candidate
 (:func:`bayesdamper.diagnosis.candidates.fit_joint`) from the grid's best point.
@@ -47,12 +49,16 @@ def _inner_fit(args):
 
     Levenberg-Marquardt with the Jacobian carried from the transient's last re-fit
     (:func:`bayesdamper.diagnosis.inner_fit.refit`, fewer solves than scipy's ``least_squares`` with forward
-    differences at every iterate) from the warm start; if it does not
-    converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point. Effect values whose solve
+    differences at every iterate) from the warm start, or from ``near`` (the transient's optimum at a point its
+    search has already evaluated) where the solve there has the smaller SSE (one solve more: a neighbour's optimum
+    can lie in another basin, or where these effect values fail); if it does not
+    converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point, unless ``rough`` (a grid
+    point's value, which only ranks the search's starts: the best point of the re-fit, an upper bound of the
+    optimum's SSE, is enough). Effect values whose solve
     fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. Returns (x̂,
     SSE, residual, Jacobian).
     """
-    k, eff, flow, warm, jac = args
+    k, eff, flow, warm, jac, rough, near = args
     prob = _PROBLEMS[k]
     lo, hi = prob.inner_box()
     f_meas = prob.force
@@ -73,10 +79,25 @@ def _inner_fit(args):
         return float(r @ r) if r is not big else 1e300
 
     x0 = np.clip(np.asarray(warm, dtype=float), lo + 1e-9, hi - 1e-9)
-    fit = refit(solve, x0, lo, hi, jac)
+    first = None
+    if near is not None:
+        x1 = np.clip(np.asarray(near, dtype=float), lo + 1e-9, hi - 1e-9)
+        r1 = solve(x1) if not np.array_equal(x1, x0) else None
+        if r1 is not None:
+            r0 = solve(x0)
+            x0, first = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
+
+    def start_solve(x):  # the chosen start's solve is not run again
+        nonlocal first
+        if first is not None and np.array_equal(x, x0):
+            r, first = first, None
+            return r
+        return solve(x)
+
+    fit = refit(start_solve, x0, lo, hi, jac)
     if fit.r is None:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
         return x0, 1e300, None, None
-    if fit.converged:
+    if fit.converged or rough:
         return fit.x, fit.sse, fit.r, fit.jac
     x0 = np.clip(fit.x, lo + 1e-9, hi - 1e-9)
     try:
@@ -128,8 +149,9 @@ def _psi_columns(args):
 @dataclass
 class ProfileEngine:
     """Evaluates S_k(ψ) for all transients (in parallel), each re-fit starting from the current model's optimum
-    (``warm``) with the Jacobian its transient's last re-fit ended with (``jac``, :mod:`.inner_fit`); a search
-    starts every window from the current model's Jacobian (:meth:`restart`).
+    (``warm``) or from where the search says (:meth:`evaluate`), with the Jacobian its transient's last re-fit ended
+    with (``jac``, :mod:`.inner_fit`); a search starts every window from the current model's Jacobian
+    (:meth:`restart`).
 
     ``screen``: windows of the searches' grid stage (:func:`bayesdamper.diagnosis.attribution.screening_subset`;
     None: all). ``screen_problems``: short stretches of the windows (:func:`screening_stretches`) that the grid stage
@@ -205,16 +227,23 @@ class ProfileEngine:
         cols = iter(self._map(_psi_columns, tasks))
         return [next(cols) if r is not None else None for r in resid]
 
-    def evaluate(self, eff, flow=None, keep: bool = False, idx=None):
+    def evaluate(self, eff, flow=None, keep: bool = False, idx=None, start=None, rough: bool = False):
         """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
         these transients only (then the arrays are over ``idx``).
 
-        ``keep`` (every window): ``eff`` becomes the current model. Each window is re-fitted from its warm start
-        with a Jacobian differenced afresh, whatever the last search left, and its optimum and the Jacobian there
-        become the warm start and the Jacobian every later search starts from (:meth:`restart`)."""
+        Each window is re-fitted from its warm start, or from ``start`` (one x per window of ``idx``: a search
+        continues from the optimum of a point it has already evaluated) where the SSE there is the smaller.
+        ``rough``: a re-fit that has not converged within its solves is not finished by the fallbacks
+        (:func:`_inner_fit`); its best point's SSE is returned. ``keep`` (every window): ``eff`` becomes the current
+        model. Each window is re-fitted from its warm start with a Jacobian differenced afresh, whatever the last
+        search left, and its optimum and the Jacobian there become the warm start and the Jacobian every later
+        search starts from (:meth:`restart`)."""
         keep = keep and idx is None
         ks = range(self.n) if idx is None else [int(i) for i in idx]
-        tasks = [(k, eff, flow, self.warm[k], None if keep else self.jac[k]) for k in ks]
+        near = [None] * len(ks) if start is None or keep else list(start)
+        rough = rough and not keep
+        tasks = [(k, eff, flow, self.warm[k], None if keep else self.jac[k], rough, x)
+                 for k, x in zip(ks, near, strict=True)]
         out = self._map(_inner_fit, tasks)
         xs = [o[0] for o in out]
         sse = np.array([o[1] for o in out])
