@@ -17,12 +17,11 @@ The search of ψ: a coarse grid (on a screening subset of the transients when th
 parameter is then refined by Brent's method, several by Levenberg-Marquardt on the separable problem (variable
 projection, :func:`_profile_lm`). Each transient's re-fit starts from the current model's optimum or, where it fits
 better, from its optimum at the nearest point the search has evaluated, and carries its Jacobian from the last one
-of the search (:mod:`bayesdamper.diagnosis.inner_fit`); a
-search starts from the current model's optimum and Jacobians
-(:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.restart`). The grid's values only rank the starts: they are
-rough (a re-fit short of convergence gives its best point, an upper bound), and a point that scores is evaluated
-exactly. The intervals come from the profile log-likelihood's
-Gauss-Newton information at the optimum (:func:`~bayesdamper.diagnosis.engine.profile_information`).
+of the search (:mod:`bayesdamper.diagnosis.inner_fit`); a search starts from the current model's optimum and
+Jacobians (:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.restart`). The grid's values only rank the starts:
+they are rough (a re-fit short of convergence gives its best point, an upper bound), and a point that scores is
+evaluated exactly. The intervals come from the profile log-likelihood's Gauss-Newton information at the optimum
+(:func:`~bayesdamper.diagnosis.engine.profile_information`).
 
 Global stage. Parameters whose profile has narrow basins — a natural frequency, a damping ratio, a threshold
 (cracking, opening) pressure, a pressure span and a valve's bleed (:func:`narrow_kind`, from the effect's parameter

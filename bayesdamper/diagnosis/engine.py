@@ -79,22 +79,14 @@ def _inner_fit(args):
         return float(r @ r) if r is not big else 1e300
 
     x0 = np.clip(np.asarray(warm, dtype=float), lo + 1e-9, hi - 1e-9)
-    first = None
+    r_start = None  # the solve at the chosen start, when it was run to choose it
     if near is not None:
         x1 = np.clip(np.asarray(near, dtype=float), lo + 1e-9, hi - 1e-9)
         r1 = solve(x1) if not np.array_equal(x1, x0) else None
         if r1 is not None:
             r0 = solve(x0)
-            x0, first = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
-
-    def start_solve(x):  # the chosen start's solve is not run again
-        nonlocal first
-        if first is not None and np.array_equal(x, x0):
-            r, first = first, None
-            return r
-        return solve(x)
-
-    fit = refit(start_solve, x0, lo, hi, jac)
+            x0, r_start = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
+    fit = refit(solve, x0, lo, hi, jac, r0=r_start)
     if fit.r is None:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
         return x0, 1e300, None, None
     if fit.converged or rough:

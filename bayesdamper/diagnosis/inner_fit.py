@@ -96,16 +96,19 @@ def _lm_step(J, r, x, lo, hi, lam):
     return lm_step(J.T @ J, J.T @ r, x, lo, hi, lam)
 
 
-def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None) -> InnerFit:
+def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None,
+          r0: np.ndarray | None = None) -> InnerFit:
     """Least-squares minimum of ``resid(x)`` (an array, or None for a failed solve) in the box [lo, hi].
 
-    ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). Returns the best point found
+    ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). ``r0``: ``resid(x0)`` where the
+    caller has solved there already (``x0`` inside the box; counted as the fit's first solve). Returns the best point
+    found
     and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could not be
     differenced; an
     infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
     """
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
-    r = resid(x)
+    r = resid(x) if r0 is None else r0
     n = 1
     if r is None:
         return InnerFit(x, float("inf"), None, None, n, False)
