@@ -5,9 +5,11 @@ import): a two-state damper with an accumulator (the reference's ``accumulator``
 pressures, eq. (1)) plus undeclared effects — one the library holds, one it does not hold (a fluid
 inertance of the orifice path), two at once, and a protocol with more reversals — and a control with no
 effect. Steps off the sample grid, 200 Hz (rig-A is 250 Hz), white force noise. The rule judged: every
-injected family is named, the controls get nothing but the two-state physics, and the pooled J falls to at
-most half where an effect exists. No threshold here was tuned on these cases: the rule's constants are the
-stated criterion's, the J ratio ≤ 0.5.
+injected family is named, the controls get nothing but the two-state physics, the pooled J falls to at
+most half where an effect exists, and where the library holds the injected forms (every case but the inertance)
+the selected model's pooled J is within 2x of the true model's on the same samples (:func:`_j_truth`). No
+threshold here was tuned on these cases: the rule's constants are the stated criterion's, the J ratio ≤ 0.5 and
+the factor 2 to the truth.
 
 CI runs the control, the inertance and the 1 kHz control of :data:`WIDE_CASES` (about 9 min on 2 cores); the poppet
 valve, friction + servo and the servo with more reversals (the longest: 15 transients, three rounds) run with
@@ -36,6 +38,8 @@ import numpy as np
 import pytest
 from independent import PAPER_FLOW, RIG_A, triangle_input, white_noise, write_dataset
 from reference_effects import alpha_for_gas_fraction, inertance_for_frequency, simulate_effects
+
+from bayesdamper.physics.effects import EFFECTS
 
 #: Truth of the base: eq. (3) with α_V 1000 at p_R 0.3 MPa, chambers charged to 1 MPa by a weak line.
 ALPHA_V, P_R = 1000.0, 3.0e5
@@ -262,6 +266,7 @@ def test_confusion_on_reference_data(case, tmp_path):
         assert named & want, row
     if case in TWO_STATE_CASES or case in WIDE_CASES:  # the injected family, and the two-state physics at most besides
         assert named <= {INJECTED[name] for name in effects} | allowed, row
-        assert d["final"]["J_pooled"] <= 2.0 * j_truth, row  # the library holds the injected form
+    if all(name in EFFECTS for name in effects):  # the library holds the injected forms (and the base's physics)
+        assert d["final"]["J_pooled"] <= 2.0 * j_truth, row
     assert ratio <= 0.5, row
     assert math.isfinite(d["final"]["J_pooled"])

@@ -210,7 +210,7 @@ def sine_window(tmp_path_factory):
     provisional = joint.StageOnePrior.flat(NoiseEstimate(0.0, 1.0, int(w.time.size), "provisional"))
     jp = joint.JointProblem.from_window(w, DAMPER, provisional, joint.PLATEAU)
     space = jp.space()
-    x_ls, j_ls = least_squares_start(jp, space)
+    x_ls, j_ls, _ = least_squares_start(jp, space)
     f_ls, _ = jp.simulate_window(x_ls)
     jp = dataclasses.replace(jp, prior=joint.StageOnePrior.flat(window_noise(w, jp.force - f_ls)))
     truth = np.r_[math.log(TRUTH["alpha_v"]), math.log(TRUTH["p_r"]),
@@ -233,6 +233,36 @@ def test_least_squares_start_recovers_every_parameter_within_its_standard_errors
     z = (x_map - truth) / sd
     assert np.all(np.abs(z) < 4.0), z
     assert np.all(sd[3:7] < 0.2 * truth[3:7]), sd[3:7] / truth[3:7]
+
+
+def test_a_further_start_is_taken_only_where_it_fits_the_window_better(sine_window):
+    """The diagnosis's search optimum as a further start of a window's fit (identify_window's ``start``): without
+    plateaus it joins the least-squares fit's grid — a start at the truth is taken (the grid's best lies farther
+    from the optimum) and ends at the same J as the fit from the grid, a start far off (α_V 3, p_R 5 MPa) is not
+    taken and leaves the fit bit-identical; with stage 1 the point fit's start is the better of its own and the
+    hint's (α_V, p_R) by the residual's sum of squares, and a hint whose solve fails is never taken."""
+    from bayesdamper.inference.identify import better_start
+
+    w, jp, space, x_ls, j_ls, truth = sine_window
+    phys = {"alpha_V": math.exp(truth[0]), "p_R_Pa": math.exp(truth[1])}
+    x_t, j_t, taken = least_squares_start(jp, space, phys | {"start_force_N": truth[2] * SMALL["area"],
+                                                             "flow": truth[3:7]})
+    assert taken and j_t == pytest.approx(j_ls, rel=1e-3)
+    x_f, j_f, taken = least_squares_start(jp, space, {"alpha_V": 3.0, "p_R_Pa": 5e6})
+    assert not taken and np.array_equal(x_f, x_ls) and j_f == j_ls
+
+    far = [math.log(3.0), math.log(5e6), *truth[2:7]]
+    start, origin = better_start(jp, far, phys, space)
+    assert origin == "search optimum" and np.allclose(start[:2], truth[:2]) and start[2:] == far[2:]
+    start, origin = better_start(jp, list(truth[:7]), {"alpha_V": 3.0, "p_R_Pa": 5e6}, space)
+    assert origin == "own" and np.array_equal(start, truth[:7])
+    assert better_start(jp, far, None, space) == (far, "own")
+
+    class Failing:  # every solve at the hint fails
+        def residual(self, theta):
+            return None if np.allclose(theta[:2], truth[:2]) else jp.residual(theta)
+
+    assert better_start(Failing(), far, phys, space) == (far, "own")
 
 
 def test_log_posterior_is_minus_inf_outside_the_box_and_never_nan(sine_window):

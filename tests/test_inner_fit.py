@@ -113,7 +113,7 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
             return (r, True) if r is not None else (np.full(400, np.nan), False)
 
     E._PROBLEMS[:] = [Problem()]
-    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None))
+    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None, False))
     assert r is not None and x_hat[1] - 12.0 <= 0.1
     assert sse == pytest.approx(float(r @ r)) and sse < 0.9 * float(resid(start) @ resid(start))
 
@@ -127,7 +127,7 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
             return super().simulate_inner(x, eff, flow)
 
     E._PROBLEMS[:] = [Counted()]
-    x_rough, sse_rough, r_rough, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None))
+    x_rough, sse_rough, r_rough, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None, False))
     own = refit(lambda x: guarded(np.asarray(x) - [5.0, 12.0]), start + [5.0, 12.0], *INNER_BOX)
     assert own.converged is False  # the wall keeps the re-fit from converging within its solves
     assert len(solves) == own.n_solves
@@ -300,7 +300,7 @@ def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
 
     def run(near):
         solves.clear()
-        out = E._inner_fit((0, None, None, warm, None, False, near))
+        out = E._inner_fit((0, None, None, warm, None, False, near, False))
         return out, len(solves)
 
     (x_w, s_w, _, _), n_w = run(None)
@@ -311,3 +311,50 @@ def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
         (x_b, s_b, _, _), n_b = run(bad)
         assert s_b == s_w and np.array_equal(x_b, x_w)
         assert n_b == n_w + 1  # the neighbour's solve; the warm start's is not run twice
+
+
+def test_a_model_made_current_re_fits_each_window_from_the_best_of_a_spread_of_starts():
+    """A window's (log α_V, log p_R) profile with two basins: a narrow well (a local optimum, SSE about 36) near the
+    top of the α_V axis, at whose optimum the warm start lies, on a broad bowl whose bottom (SSE 25) is far from it,
+    and steep in log p_R, so that every start of the spread over the box (engine.spread_starts, off the p_R optimum
+    by a quarter of a part at least) has a larger SSE than the well's optimum. A search's re-fit stays in the warm
+    start's basin; the re-fit of a model made current (``keep``) also re-fits from the spread's best start and keeps
+    the better optimum: the bowl (choosing the best start alone would keep the well). A warm start already in the
+    bowl gives the same optimum either way."""
+    from bayesdamper.diagnosis import engine as E
+    from bayesdamper.inference.problem import INNER_BOX
+
+    well, bowl, width, depth = 8.0, 2.0, 0.5, 24.0
+
+    def resid(x):  # SSE = (y - bowl)^2 + 25 - depth exp(-(y - well)^2 / 2 width^2) + 400 (x1 - 12)^2
+        y = x[0]
+        return np.array([y - bowl, math.sqrt(25.0 - depth * math.exp(-0.5 * ((y - well) / width) ** 2)),
+                         20.0 * (x[1] - 12.0)])
+
+    class Problem:
+        force = np.zeros(3)
+
+        def inner_box(self):
+            return INNER_BOX
+
+        def simulate_inner(self, x, eff, flow=None):
+            return resid(np.asarray(x, dtype=float)), True
+
+    spread = E.spread_starts(*INNER_BOX, np.array([8.2, 12.0]))
+    assert len(spread) == E.SPREAD_POINTS ** 2
+    assert min(float(resid(x) @ resid(x)) for x in spread) > 40.0  # no raw start beats the well's optimum
+    E._PROBLEMS[:] = [Problem()]
+    for warm, local in ((np.array([7.88, 12.0]), True), (np.array([2.5, 12.5]), False)):
+        x_s, s_s, _, _ = E._inner_fit((0, None, None, warm, None, False, None, False))
+        x_k, s_k, _, _ = E._inner_fit((0, None, None, warm, None, False, None, True))
+        assert s_k == pytest.approx(25.0, abs=1e-3) and x_k[0] == pytest.approx(bowl, abs=1e-2)
+        if local:
+            assert s_s > 35.0 and abs(x_s[0] - well) < 0.3  # the search's re-fit stays in the well
+        else:
+            assert s_s == pytest.approx(s_k, rel=1e-6)
+    # through the engine: evaluate(keep=True) spreads, a search's evaluate does not; the kept optimum is the warm start
+    eng = E.ProfileEngine([Problem()], [np.array([7.88, 12.0])], workers=1)
+    sse_search, _, _ = eng.evaluate(None, None)
+    sse_kept, xs, _ = eng.evaluate(None, None, keep=True)
+    assert sse_search[0] > 35.0 and sse_kept[0] == pytest.approx(25.0, abs=1e-3)
+    assert np.array_equal(eng.warm[0], xs[0])

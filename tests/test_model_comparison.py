@@ -187,6 +187,22 @@ def test_true_model_predicts_held_out_speeds_to_the_noise_floor(synthetic):
     assert len(res["folds"]) == len(SPEEDS)
 
 
+def test_the_in_sample_fits_leave_a_corner_of_the_box(synthetic):
+    """Every window started in the corner of no gas (α_V at the top of the box, p_R at its bottom), where a re-fit of
+    eq. (7) stops (α_V about 190 times the truth's for the worst window): the comparison's in-sample fits also start
+    from the best of the spread over the box (engine.spread_starts) and find every window's truth."""
+    problems, kinds, speeds, truth = synthetic
+    engine = ProfileEngine(problems, [p.inner_start(4999.0, 1.01e3) for p in problems], workers=1)
+    stuck, _, _ = engine.evaluate(effect_argument({}), None)
+    forces = [p.force for p in problems]
+    res = compare_models(engine, forces, kinds, speeds, lambda e: None, effect_argument, D.liquid_bulk_modulus,
+                         models=(BaseModel(BASE, "eq. (7) with eq. (6)"),))
+    norms = np.array([float(f @ f) for f in forces])
+    assert math.sqrt(stuck.sum() / norms.sum()) > 0.1  # the corner's re-fit: no fit at all
+    for w, (a, pr) in zip(res["models"][BASE]["windows"], truth, strict=True):
+        assert w["alpha_V"] == pytest.approx(a, rel=2e-3) and w["p_R_Pa"] == pytest.approx(pr, rel=2e-3)
+
+
 def test_a_wrong_drift_law_does_not_predict(synthetic):
     """The same windows with the training estimates' law replaced by a constant: the held-out J is far above the
     true law's (the comparison's held-out J measures the law, not the in-sample fit)."""

@@ -111,7 +111,7 @@ def test_interpolated_triangle_corners_cost_no_accuracy(tmp_path):
     assert ok and np.max(np.abs(f_model - f[np.searchsorted(t, w.time)])) < CORNER_FORCE_N
     # the noise-free optimum, in sd of the posterior the same record would have with SD noise
     space = jp.space()
-    x_ls, _ = least_squares_start(jp, space)
+    x_ls, _, _ = least_squares_start(jp, space)
     lp = joint.JointLogPosterior(jp, space)
     x_map, cov = joint.fit_map(lp, np.array(x_ls))
     assert cov is not None

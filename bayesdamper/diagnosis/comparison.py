@@ -15,10 +15,12 @@ stiffness follows from them:
 The effects the select-and-refit loop chose are not part of any of them: this compares the base models.
 
 In sample, each model's windows are re-fitted by the profile engine (:class:`~bayesdamper.diagnosis.engine.
-ProfileEngine`): per window (α_V, p_R), the pooled eq. (9) J over all windows and per kind of step (``initial``: a
-start from rest, ``reversal``, ``cycles``: a window of whole cycles), the medians of α_V and p_R per kind and their
-drift with speed, the least-squares slopes of log α_V and log p_R against log speed over the kind's windows with
-their standard errors (:func:`drift_line`).
+ProfileEngine`), each from its start and from the best of a spread of (α_V, p_R) over the box
+(:func:`~bayesdamper.diagnosis.engine.spread_starts`: with the two-state model these mean the charge state, and a
+re-fit from eq. (6)'s optimum can stop in another basin): per window (α_V, p_R), the pooled eq. (9) J over all
+windows and per kind of step (``initial``: a start from rest, ``reversal``, ``cycles``: a window of whole cycles),
+the medians of α_V and p_R per kind and their drift with speed, the least-squares slopes of log α_V and log p_R
+against log speed over the kind's windows with their standard errors (:func:`drift_line`).
 
 Held out, leave one speed out: every test speed is a fold (each fold costs one solve per held-out window, so the
 speeds are not grouped). A held-out window is predicted without re-fitting it (:meth:`ProfileEngine.evaluate_at`):
@@ -289,13 +291,16 @@ def compare_models(engine, forces: list[np.ndarray], kinds: Sequence[str], speed
             start = {m.fitted: dict(starts[m.fitted])} if starts and m.fitted in starts else {}
             fit = fit_joint(engine, [CandidateSpec(m.fitted)], start, m.effects, ref_sse, n_eff, flow_for, pack,
                             new=(m.fitted,))
-            effects, sse, xs = fit.effects, np.asarray(fit.sse, dtype=float), [np.asarray(x) for x in fit.warm]
+            effects = fit.effects
+            # each window also re-fitted from the spread of (α_V, p_R) starts: its optimum in the search can be a
+            # local one (engine.spread_starts)
+            sse, xs, _ = engine.evaluate(pack(effects), flow_for(effects), start=fit.warm, spread=True)
             shared = {"params": {k: {q: _num(v) for q, v in p.items()} for k, p in fit.params.items()},
                       "delta_BIC_eff_vs_eq6": _num(fit.delta_bic), "search_started_from": "given values" if start
                       else "a grid", "profile_evaluations": int(fit.n_evaluations)}
         else:
             effects = {e: dict(v or {}) for e, v in m.effects.items()}
-            sse, xs, resid = engine.evaluate(pack(effects), flow_for(effects))
+            sse, xs, resid = engine.evaluate(pack(effects), flow_for(effects), spread=True)
             if not effects and ref_sse is None:
                 ref_sse = sse
                 n_eff = effective_sizes([r if r is not None else f for r, f in zip(resid, forces, strict=True)])

@@ -42,6 +42,27 @@ _PROBLEMS: list = []
 #: (tests/test_confusion.py), whose baseline sits at the box bounds of (α_V, p_R) and whose only candidate gains
 #: 26 in ΔBIC_eff, showed how little slack the search has.
 LS_XTOL, LS_FTOL = 1e-4, 1e-7
+#: Starts of each window's (α_V, p_R) when a model becomes current (:meth:`ProfileEngine.evaluate` with ``keep``):
+#: the centres of this many equal parts of each log axis of the box, each with the warm start's other own
+#: parameters; the window is re-fitted from the best of them as well as from the warm start, the better kept. A
+#: window's (α_V, p_R) profile can have several basins: with the two-state model α_V and p_R describe the charge
+#: state rather than eq. (6)'s assumed pressures, and a re-fit from eq. (7)'s optimum can end in a corner of the box
+#: (α_V at its top, p_R at its bottom: no gas) far from the physical optimum. A start's own SSE does not tell the
+#: basins apart (such a corner optimum fits better than any raw start), so both re-fits run. 25 solves per window
+#: and one re-fit more, once per model made current.
+SPREAD_POINTS = 5
+
+
+def spread_starts(lo: np.ndarray, hi: np.ndarray, x0: np.ndarray) -> list[np.ndarray]:
+    """:data:`SPREAD_POINTS` ² starts over the (log α_V, log p_R) box ``lo``-``hi``, the other entries of ``x0``."""
+    axes = [lo[j] + (np.arange(SPREAD_POINTS) + 0.5) * (hi[j] - lo[j]) / SPREAD_POINTS for j in (0, 1)]
+    out = []
+    for a in axes[0]:
+        for b in axes[1]:
+            x = np.array(x0, dtype=float)
+            x[:2] = a, b
+            out.append(x)
+    return out
 
 
 def _inner_fit(args):
@@ -55,10 +76,12 @@ def _inner_fit(args):
     converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point, unless ``rough`` (a grid
     point's value, which only ranks the search's starts: the best point of the re-fit, an upper bound of the
     optimum's SSE, is enough). Effect values whose solve
-    fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. Returns (x̂,
-    SSE, residual, Jacobian).
+    fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. With
+    ``spread`` (a model made current) the window is also re-fitted from the best of :func:`spread_starts`, and the
+    better optimum is kept. Returns (x̂, SSE, residual,
+    Jacobian).
     """
-    k, eff, flow, warm, jac, rough, near = args
+    k, eff, flow, warm, jac, rough, near, spread = args
     prob = _PROBLEMS[k]
     lo, hi = prob.inner_box()
     f_meas = prob.force
@@ -86,28 +109,43 @@ def _inner_fit(args):
         if r1 is not None:
             r0 = solve(x0)
             x0, r_start = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
-    fit = refit(solve, x0, lo, hi, jac, r0=r_start)
-    if fit.r is None:  # the effect values fail at the current (α_V, p_R): infeasible, not searched further
-        return x0, 1e300, None, None
-    if fit.converged or rough:
-        return fit.x, fit.sse, fit.r, fit.jac
-    x0 = np.clip(fit.x, lo + 1e-9, hi - 1e-9)
-    try:
-        ls = least_squares(resid, x0, method="trf", bounds=(lo, hi), diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
-                           ftol=LS_FTOL, max_nfev=20 * x0.size)
-        x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
-    except (ValueError, np.linalg.LinAlgError):
-        x_hat, ok_ls = x0, False
-    if not ok_ls and x0.size <= NM_MAX_PARAMETERS:
-        simplex = np.vstack([x0, x0 + 0.1 * np.eye(x0.size)])
-        res = minimize(sse, x0, method="Nelder-Mead",
-                       options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
-                                "maxiter": 150})
-        x_hat = res.x if res.fun < sse(x0) else x0
-    r = solve(x_hat)
-    if r is None:
-        return x_hat, 1e300, None, None
-    return x_hat, float(r @ r), r, None
+    def finish(x0, r_start):
+        fit = refit(solve, x0, lo, hi, jac, r0=r_start)
+        if fit.r is None:  # the effect values fail at this (α_V, p_R): infeasible, not searched further
+            return x0, 1e300, None, None
+        if fit.converged or rough:
+            return fit.x, fit.sse, fit.r, fit.jac
+        x0 = np.clip(fit.x, lo + 1e-9, hi - 1e-9)
+        try:
+            ls = least_squares(resid, x0, method="trf", bounds=(lo, hi), diff_step=1e-4, x_scale=1.0, xtol=LS_XTOL,
+                               ftol=LS_FTOL, max_nfev=20 * x0.size)
+            x_hat, ok_ls = ls.x, bool(ls.success) and float(ls.cost) * 2.0 < float(np.sum(big * big)) * 1e-6
+        except (ValueError, np.linalg.LinAlgError):
+            x_hat, ok_ls = x0, False
+        if not ok_ls and x0.size <= NM_MAX_PARAMETERS:
+            simplex = np.vstack([x0, x0 + 0.1 * np.eye(x0.size)])
+            res = minimize(sse, x0, method="Nelder-Mead",
+                           options={"initial_simplex": simplex, "xatol": 2e-3, "fatol": 1e-6 * max(sse(x0), 1.0),
+                                    "maxiter": 150})
+            x_hat = res.x if res.fun < sse(x0) else x0
+        r = solve(x_hat)
+        if r is None:
+            return x_hat, 1e300, None, None
+        return x_hat, float(r @ r), r, None
+
+    out = finish(x0, r_start)
+    if spread:  # also from the best of the spread: the warm start's own basin can be a local optimum
+        best, x_best, r_best = math.inf, None, None
+        for x in spread_starts(lo, hi, x0):
+            x = np.clip(x, lo + 1e-9, hi - 1e-9)
+            r = solve(x)
+            if r is not None and float(r @ r) < best:
+                best, x_best, r_best = float(r @ r), x, r
+        if x_best is not None:
+            other = finish(x_best, r_best)
+            if other[1] < out[1]:
+                out = other
+    return out
 
 
 def _solve_at(args):
@@ -219,7 +257,8 @@ class ProfileEngine:
         cols = iter(self._map(_psi_columns, tasks))
         return [next(cols) if r is not None else None for r in resid]
 
-    def evaluate(self, eff, flow=None, keep: bool = False, idx=None, start=None, rough: bool = False):
+    def evaluate(self, eff, flow=None, keep: bool = False, idx=None, start=None, rough: bool = False,
+                 spread: bool = False):
         """Per-transient SSE [N^2] and residuals at effect set ``eff`` (and flow coefficients); ``idx``:
         these transients only (then the arrays are over ``idx``).
 
@@ -227,14 +266,16 @@ class ProfileEngine:
         continues from the optimum of a point it has already evaluated) where the SSE there is the smaller.
         ``rough``: a re-fit that has not converged within its solves is not finished by the fallbacks
         (:func:`_inner_fit`); its best point's SSE is returned. ``keep`` (every window): ``eff`` becomes the current
-        model. Each window is re-fitted from its warm start with a Jacobian differenced afresh, whatever the last
-        search left, and its optimum and the Jacobian there become the warm start and the Jacobian every later
-        search starts from (:meth:`restart`)."""
+        model. Each window is re-fitted from its warm start and from the best of :func:`spread_starts` (the better
+        optimum kept) with a Jacobian differenced afresh, whatever the last search left, and its optimum and the
+        Jacobian there become the warm start and the Jacobian every later search starts from (:meth:`restart`).
+        ``spread``: each window is also re-fitted from the best of :func:`spread_starts` as with ``keep``, without
+        making the model current."""
         keep = keep and idx is None
         ks = range(self.n) if idx is None else [int(i) for i in idx]
         near = [None] * len(ks) if start is None or keep else list(start)
-        rough = rough and not keep
-        tasks = [(k, eff, flow, self.warm[k], None if keep else self.jac[k], rough, x)
+        rough = rough and not (keep or spread)
+        tasks = [(k, eff, flow, self.warm[k], None if keep else self.jac[k], rough, x, keep or spread)
                  for k, x in zip(ks, near, strict=True)]
         out = self._map(_inner_fit, tasks)
         xs = [o[0] for o in out]

@@ -183,7 +183,9 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
         "selected": selected,
         "selected_params": fixed,
         "final": {"J_pooled": pooled_j(final_resid, forces), "J_pooled_ls": pooled_j_ls(final_entries, forces),
-                  "J": {e["id"]: e["J"] for e in final_entries}},
+                  "J": {e["id"]: e["J"] for e in final_entries},
+                  # where each window's point fit started: its own start or the search's optimum of the model
+                  "started_from": {e["id"]: e.get("start", "own") for e in final_entries}},
         "J_pooled_by_velocity_mm_s": per_velocity,
         "J_by_speed": j_by_speed(windows, base_resid, final_resid, base_entries, final_entries),
         "findings": bound_findings(selected, fixed, names),

@@ -67,7 +67,7 @@ FLOW_DIMS = np.arange(3, 7)
 def identify_window(window, damper: DamperConstants, flow: FlowCoefficients | None, settings: StageTwoSettings,
                     seed: int, out_nc: Path | None = None, provenance: dict | None = None, progress=None,
                     static_draws: np.ndarray | None = None, problem=None, prior=None,
-                    effects=None) -> WindowResult:
+                    effects=None, start: dict | None = None) -> WindowResult:
     """Point fit and posterior of one window (module docstring).
 
     Parameters
@@ -91,6 +91,12 @@ def identify_window(window, damper: DamperConstants, flow: FlowCoefficients | No
     effects : ComposedEffects, optional
         Effects added to eq. (7), held at their values (the diagnosis's final model): the same likelihood, priors
         and sampler, on the composed kernel.
+    start : dict, optional
+        A further start of the point fit of a model with ``effects``: physical ``alpha_V``, ``p_R_Pa`` and, where
+        known, ``start_force_N`` [N] and ``flow`` (4,) — the window's optimum in the diagnosis's search of the same
+        model. The fit starts from whichever of it and its own start fits the window better (one solve more):
+        with effects such as the two-state model, α_V and p_R mean other things than in eq. (7), and the eq. (7)
+        optimum can lie in another basin of the model with effects. Recorded as the entry's ``start``.
     out_nc : Path, optional
         Where the posterior is written (atomically) with its provenance.
     """
@@ -98,7 +104,26 @@ def identify_window(window, damper: DamperConstants, flow: FlowCoefficients | No
                                                                         and not settings.propagate):
         return identify_conditional(window, damper, flow, settings, seed, out_nc, provenance, progress,
                                     static_draws, problem)
-    return _identify_joint(window, damper, flow, settings, seed, out_nc, provenance, progress, prior, effects)
+    return _identify_joint(window, damper, flow, settings, seed, out_nc, provenance, progress, prior, effects,
+                           start if effects is not None else None)
+
+
+def _sse(jp, theta) -> float:
+    """Sum of squares of the joint problem's residual (pre-step samples included) at ``theta``; inf if the solve
+    fails."""
+    r = jp.residual(np.asarray(theta, dtype=float))
+    return float(r @ r) if r is not None and np.all(np.isfinite(r)) else float("inf")
+
+
+def better_start(jp, own: list, hint: dict | None, space) -> tuple[list, str]:
+    """``own`` (log α_V, log p_R, Δp0, flow...) or the same with the hint's (α_V, p_R) (clipped into ``space``),
+    whichever has the smaller residual sum of squares (:func:`identify_window`'s ``start``), and which it is:
+    ``"own"`` or ``"search optimum"``. A hint whose solve fails is not taken."""
+    if hint is None:
+        return own, "own"
+    alt = list(own)
+    alt[:2] = np.clip(np.log([hint["alpha_V"], hint["p_R_Pa"]]), space.lower[:2], space.upper[:2])
+    return (alt, "search optimum") if _sse(jp, alt) < _sse(jp, own) else (own, "own")
 
 
 def window_noise(window, residual: np.ndarray):
@@ -152,7 +177,7 @@ def _cut_by_zero(x: np.ndarray, lower: np.ndarray, cov: np.ndarray | None) -> np
 
 
 def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
-                    prior, effects=None) -> WindowResult:
+                    prior, effects=None, hint: dict | None = None) -> WindowResult:
     from bayesdamper.inference import cut, joint
     from bayesdamper.inference.start import least_squares_start
 
@@ -165,7 +190,8 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
         provisional = joint.StageOnePrior.flat(NoiseEstimate(0.0, 1.0, int(window.time.size), "provisional"))
         jp = joint.JointProblem.from_window(window, damper, provisional, code, effects=effects)
         space = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
-        x_ls, j_ls = least_squares_start(jp, space)
+        x_ls, j_ls, hinted = least_squares_start(jp, space, hint)
+        origin = "search optimum" if hinted else "own"
         f_ls, _ = jp.simulate_window(x_ls)
         prior = joint.StageOnePrior.flat(window_noise(window, jp.force - f_ls) if prior is None else prior.noise)
         jp = replace(jp, prior=prior)
@@ -180,7 +206,8 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
         # as "ls" and the start of the MAP fit
         cond = WindowProblem.from_window(window, damper, flow)
         pf = fit_point(cond, ParameterSpace.default((), settings.alpha_v_bounds, settings.p_r_bounds))
-        start = [np.log(pf.alpha_v), np.log(pf.p_r), jp.dp0_estimate, *prior.mean]
+        start, origin = better_start(jp, [np.log(pf.alpha_v), np.log(pf.p_r), jp.dp0_estimate, *prior.mean], hint,
+                                     space)
         ls = {"alpha_V": pf.alpha_v, "p_R_Pa": pf.p_r, "J": pf.cost}
         ls_force, _ = cond.simulate_force(pf.alpha_v, pf.p_r)
     space = jp.space(settings.alpha_v_bounds, settings.p_r_bounds)
@@ -242,6 +269,8 @@ def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int,
         **sampling_summary(res, space.names, phys),
         "shape": shape_report(flat, space.lower, space.upper),
         "seed": seed_t, "propagated": True, "coupling": coupling,
+        # where the point fit started: its own start, or the diagnosis's search optimum of the same model
+        "start": origin,
         "effects": effects.as_dict() if effects is not None else {},
         "flow_prior": "stage 1 (plateaus)" if prior.gaussian else "flat (no plateaus): sampled with the window",
         "noise": prior.noise.as_dict() | {"model": settings.noise_model},

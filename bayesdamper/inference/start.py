@@ -49,9 +49,14 @@ def quasi_static_flow(time: np.ndarray, force: np.ndarray, velocity: np.ndarray,
     return flow4
 
 
-def least_squares_start(jp, space) -> tuple[np.ndarray, float]:
+def least_squares_start(jp, space, hint: dict | None = None) -> tuple[np.ndarray, float, bool]:
     """Least-squares optimum of eq. (9) over (log α_V, log p_R, Δp0, C_L12, C_Q12, C_L21, C_Q21) of a
-    :class:`~bayesdamper.inference.joint.JointProblem` (pre-step samples included), and its J over the window.
+    :class:`~bayesdamper.inference.joint.JointProblem` (pre-step samples included), its J over the window, and
+    whether it started from ``hint``.
+
+    ``hint``: a further start beside the grid's, physical ``alpha_V``, ``p_R_Pa`` and, where known,
+    ``start_force_N`` [N] (else the window's Δp0 estimate) and ``flow`` (4,) (else the quasi-static estimate);
+    the fit starts from the best of the grid and the hint.
 
     Raises
     ------
@@ -81,6 +86,16 @@ def least_squares_start(jp, space) -> tuple[np.ndarray, float]:
             s = float(r @ r) if r is not None else math.inf
             if s < best_s:
                 best, best_s = th, s
+    hinted = False
+    if hint is not None:
+        th = np.r_[math.log(hint["alpha_V"]), math.log(hint["p_R_Pa"]),
+                   hint["start_force_N"] / area if "start_force_N" in hint else dp0,
+                   np.asarray(hint["flow"], dtype=float) if "flow" in hint else flow4]
+        th = np.clip(th, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        r = jp.residual(th)
+        s = float(r @ r) if r is not None else math.inf
+        if s < best_s:
+            best, best_s, hinted = th, s, True
     if best is None:
         raise RuntimeError(f"{jp.segment_id}: no start of the least-squares fit gives a finite solution")
     eps = 1e-9 * (hi - lo)
@@ -91,4 +106,4 @@ def least_squares_start(jp, space) -> tuple[np.ndarray, float]:
     x = sol.x if r is not None and float(r @ r) <= best_s else best
     f, ok = jp.simulate_window(x)
     j = float(np.linalg.norm(f - jp.force) / np.linalg.norm(jp.force)) if ok else math.inf
-    return x, j
+    return x, j, hinted

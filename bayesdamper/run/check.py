@@ -102,7 +102,7 @@ def _check_cycles(plan, windows, fit: bool) -> None:
           f"{'J':>8}")
     for w in windows:
         jp = JointProblem.from_window(w, plan.ds.damper, StageOnePrior.flat(PlateauNoise(0.0, 1.0, 1, 0)))
-        x, j = least_squares_start(jp, jp.space())
+        x, j, _ = least_squares_start(jp, jp.space())
         print(f"  {w.id:<24}" + "".join(f"{v:11.3e}" for v in x[3:7]) + f"{np.exp(x[0]):9.1f}{np.exp(x[1]):11.4g}"
               f"{j:8.4f}")
     print()

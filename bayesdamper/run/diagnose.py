@@ -126,7 +126,8 @@ class Prepared:
     """One data set made ready for the search: windows, calibrated baseline, residual structure and signature,
     candidate list, and the search problems (a fresh :class:`ProfileEngine` from :meth:`engine` each time: an
     engine's workers see the problems of the engine built last). ``compare``: the search step also compares the
-    base models (:mod:`bayesdamper.diagnosis.comparison`), its result then in ``comparison``."""
+    base models (:mod:`bayesdamper.diagnosis.comparison`), its result then in ``comparison``; ``search_optima``: each
+    window's own parameters at the optimum of the model the loop ended with, further starts of its final fit."""
 
     ds: object
     segs: tuple
@@ -156,6 +157,7 @@ class Prepared:
     t0: float
     compare: bool = True
     comparison: dict | None = None
+    search_optima: list | None = None  # per window: its own parameters at the loop's final model (unpack_inner)
 
     @property
     def speeds(self) -> list[float]:
@@ -320,6 +322,8 @@ def search_effects(p: Prepared) -> tuple[list, dict, list]:
     try:
         with p.progress.phase(f"diagnose: candidate effects ({p.ds.name})", unit="fit"):
             selected, fixed, rounds = select_effects(engine, p.names, p.forces, p.flow_for, p.progress, p.speeds)
+            # the loop's last evaluation of the model it ended with left each window's optimum as its warm start
+            p.search_optima = [prob.unpack_inner(x) for prob, x in zip(p.problems, engine.warm[:engine.n], strict=True)]
             p.progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
         if p.compare:
             with p.progress.phase("diagnose: model comparison", total=len(DEFAULT_MODELS), unit="model"):
@@ -349,8 +353,9 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
                        else None)
         eff = effect_argument(fixed)
         with progress.phase(f"diagnose: final model with {', '.join(selected)}", total=len(windows), unit="window"):
+            # each window's fit also starts from its optimum in the search (the better of it and the eq. (7) one)
             final = identify_all(windows, ds.damper, flow_final, final_settings(p.settings), p.seed, p.workers, None,
-                                 p.prov, progress, prior=prior_final, effects=eff)
+                                 p.prov, progress, prior=prior_final, effects=eff, starts=p.search_optima)
             progress.note(f"{sum(r.entry['converged'] for r in final)} converged")
         final_resid, final_flows = baseline_residuals(windows, final, ds.damper, flow_final, eff)
     else:

@@ -61,14 +61,14 @@ def _remote_identify(task: tuple) -> tuple:
     """Run one window on a worker; return ``(WindowResult, NetCDF bytes or None)``."""
     from bayesdamper.inference.identify import identify_window
 
-    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects = task
+    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects, start = task
     if nc is None:
         return identify_window(tr, damper, flow, settings, seed, None, prov, static_draws=draws,
-                               prior=prior, effects=effects), None
+                               prior=prior, effects=effects, start=start), None
     with tempfile.TemporaryDirectory(prefix="bayesdamper-") as tmp:
         local = Path(tmp) / Path(nc).name
         res = identify_window(tr, damper, flow, settings, seed, local, prov, static_draws=draws, prior=prior,
-                              effects=effects)
+                              effects=effects, start=start)
         return res, local.read_bytes()
 
 

@@ -30,9 +30,9 @@ def prepare(data_dir: str | Path, tmax: float):
 
 
 def _worker(args) -> WindowResult:
-    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects = args
+    tr, damper, flow, settings, seed, nc, prov, draws, prior, effects, start = args
     return identify_window(tr, damper, flow, settings, seed, nc, prov, static_draws=draws, prior=prior,
-                           effects=effects)
+                           effects=effects, start=start)
 
 
 def _prior_of(prior, i: int):
@@ -73,7 +73,7 @@ def warm_up_kernels(transient, damper, flow, settings: StageTwoSettings, prior=N
 def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int, workers: int,
                  posterior_dir: Path | None, provenance: dict, progress: Progress,
                  static_draws: np.ndarray | None = None, *, client=None, prior=None,
-                 effects=None) -> list[WindowResult]:
+                 effects=None, starts: list | None = None) -> list[WindowResult]:
     """Stage 2 for every transient, on ``workers`` processes or a Dask cluster; results in input order.
 
     ``prior`` (a :class:`~bayesdamper.inference.joint.StageOnePrior`) makes every posterior the joint one
@@ -81,11 +81,12 @@ def identify_all(transients, damper, flow, settings: StageTwoSettings, seed: int
     stage 1) switch on, for conditional posteriors, the check of how much the stage-1 uncertainty moves each
     transient's optimum. ``client`` (a connected ``dask.distributed.Client``) sends the tasks to its cluster
     instead of the local pool. ``effects`` (a :class:`~bayesdamper.physics.compose.ComposedEffects`) adds effects
-    to every window's model, held at their values.
+    to every window's model, held at their values; ``starts`` (one dict per transient, or None) are further starts
+    of their point fits with the effects (:func:`~bayesdamper.inference.identify.identify_window`'s ``start``).
     """
     tasks = [(tr, damper, flow, settings, seed,
               None if posterior_dir is None else posterior_dir / f"{tr.id}.nc", provenance, static_draws,
-              _prior_of(prior, i), effects) for i, tr in enumerate(transients)]
+              _prior_of(prior, i), effects, None if starts is None else starts[i]) for i, tr in enumerate(transients)]
     def report(i: int, res: WindowResult, done: int) -> None:
         e = res.entry
         state = "converged" if e["converged"] else "NOT converged"
