@@ -75,11 +75,9 @@ def _inner_fit(args):
     can lie in another basin, or where these effect values fail); if it does not
     converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point, unless ``rough`` (a grid
     point's value, which only ranks the search's starts: the best point of the re-fit, an upper bound of the
-    optimum's SSE, is enough). Effect values whose solve
-    fails at the warm start itself (a chattering valve past the step cap, say) are infeasible at once. With
-    ``spread`` (a model made current) the window is also re-fitted from the best of :func:`spread_starts`, and the
-    better optimum is kept. Returns (x̂, SSE, residual,
-    Jacobian).
+    optimum's SSE, is enough). Effect values whose solve fails at the warm start itself (a chattering valve past the
+    step cap, say) are infeasible at once. With ``spread`` (a model made current) the window is also re-fitted from
+    the best of :func:`spread_starts`, and the better optimum is kept. Returns (x̂, SSE, residual, Jacobian).
     """
     k, eff, flow, warm, jac, rough, near, spread = args
     prob = _PROBLEMS[k]

@@ -47,7 +47,7 @@ from bayesdamper.inference.stage2 import (
     thinned_chains,
 )
 
-__all__ = ["identify_window", "window_noise"]
+__all__ = ["better_start", "identify_window", "window_noise"]
 
 #: Sampler of the joint posterior: differential evolution with independence moves from the Gauss-Newton
 #: approximation at the MAP (a window that determines its parameters has a posterior close to Gaussian in the
