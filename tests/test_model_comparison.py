@@ -187,11 +187,35 @@ def test_true_model_predicts_held_out_speeds_to_the_noise_floor(synthetic):
     assert len(res["folds"]) == len(SPEEDS)
 
 
-def test_the_in_sample_fits_leave_a_corner_of_the_box(synthetic):
+def independent_windows():
+    """The windows of :func:`synthetic_windows` with their forces from the independent reference (scipy Radau,
+    ``tests/independent.py``: no bayesdamper code) instead of bayesdamper's own simulator."""
+    from independent import PAPER_FLOW as REF_FLOW
+    from independent import RIG_A, simulate, triangle_input
+
+    problems, kinds, speeds, truth = [], [], [], []
+    for v in SPEEDS:
+        exc = PiecewiseLinear.triangle(AMPLITUDE, v, rest=REST, cycles=1.25)
+        inp = triangle_input(v, AMPLITUDE, 0.0, REST, cycles=1.25)  # the same motion
+        alpha, p_r = true_pair(v)
+        for kind, t0 in (("initial", REST), ("reversal", REST + AMPLITUDE / v)):
+            t = t0 + np.arange(0.0, WINDOW_S, 1.0 / RATE)
+            f = simulate(inp, t, RIG_A, REF_FLOW, alpha, p_r, dp0=0.0, t0=0.0)
+            problems.append(EffectsProblem(f"v{v * 1e3:.2f}_{kind}", t, f, float(t[0]), float(f[0]), 0.0,
+                                           as_drive(exc), D, FLOW))
+            kinds.append(kind)
+            speeds.append(v)
+            truth.append((alpha, p_r))
+    return problems, kinds, speeds, truth
+
+
+def test_the_in_sample_fits_leave_a_corner_of_the_box():
     """Every window started in the corner of no gas (α_V at the top of the box, p_R at its bottom), where a re-fit of
     eq. (7) stops (α_V about 190 times the truth's for the worst window): the comparison's in-sample fits also start
-    from the best of the spread over the box (engine.spread_starts) and find every window's truth."""
-    problems, kinds, speeds, truth = synthetic
+    from the best of the spread over the box (engine.spread_starts) and find every window's truth. The data come
+    from the independent reference without noise; the tolerance, 1 %, is far above the kernel's (rtol 1e-6) and
+    far below the corner's error."""
+    problems, kinds, speeds, truth = independent_windows()
     engine = ProfileEngine(problems, [p.inner_start(4999.0, 1.01e3) for p in problems], workers=1)
     stuck, _, _ = engine.evaluate(effect_argument({}), None)
     forces = [p.force for p in problems]
@@ -200,7 +224,7 @@ def test_the_in_sample_fits_leave_a_corner_of_the_box(synthetic):
     norms = np.array([float(f @ f) for f in forces])
     assert math.sqrt(stuck.sum() / norms.sum()) > 0.1  # the corner's re-fit: no fit at all
     for w, (a, pr) in zip(res["models"][BASE]["windows"], truth, strict=True):
-        assert w["alpha_V"] == pytest.approx(a, rel=2e-3) and w["p_R_Pa"] == pytest.approx(pr, rel=2e-3)
+        assert w["alpha_V"] == pytest.approx(a, rel=1e-2) and w["p_R_Pa"] == pytest.approx(pr, rel=1e-2), w
 
 
 def test_a_wrong_drift_law_does_not_predict(synthetic):

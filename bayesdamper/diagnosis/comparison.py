@@ -292,19 +292,20 @@ def compare_models(engine, forces: list[np.ndarray], kinds: Sequence[str], speed
             fit = fit_joint(engine, [CandidateSpec(m.fitted)], start, m.effects, ref_sse, n_eff, flow_for, pack,
                             new=(m.fitted,))
             effects = fit.effects
+            flow = flow_for(effects)
             # each window also re-fitted from the spread of (α_V, p_R) starts: its optimum in the search can be a
             # local one (engine.spread_starts)
-            sse, xs, _ = engine.evaluate(pack(effects), flow_for(effects), start=fit.warm, spread=True)
+            sse, xs, _ = engine.evaluate(pack(effects), flow, start=fit.warm, spread=True)
             shared = {"params": {k: {q: _num(v) for q, v in p.items()} for k, p in fit.params.items()},
                       "delta_BIC_eff_vs_eq6": _num(fit.delta_bic), "search_started_from": "given values" if start
                       else "a grid", "profile_evaluations": int(fit.n_evaluations)}
         else:
             effects = {e: dict(v or {}) for e, v in m.effects.items()}
-            sse, xs, resid = engine.evaluate(pack(effects), flow_for(effects), spread=True)
+            flow = flow_for(effects)
+            sse, xs, resid = engine.evaluate(pack(effects), flow, spread=True)
             if not effects and ref_sse is None:
                 ref_sse = sse
                 n_eff = effective_sizes([r if r is not None else f for r, f in zip(resid, forces, strict=True)])
-        flow = flow_for(effects)
         ok = np.asarray(sse, dtype=float) < _FAILED
         sse_in = np.where(ok, sse, norms)
         x2 = np.array([np.asarray(x, dtype=float)[:2] for x in xs])

@@ -107,6 +107,7 @@ def _inner_fit(args):
         if r1 is not None:
             r0 = solve(x0)
             x0, r_start = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
+
     def finish(x0, r_start):
         fit = refit(solve, x0, lo, hi, jac, r0=r_start)
         if fit.r is None:  # the effect values fail at this (α_V, p_R): infeasible, not searched further
@@ -134,8 +135,7 @@ def _inner_fit(args):
     out = finish(x0, r_start)
     if spread:  # also from the best of the spread: the warm start's own basin can be a local optimum
         best, x_best, r_best = math.inf, None, None
-        for x in spread_starts(lo, hi, x0):
-            x = np.clip(x, lo + 1e-9, hi - 1e-9)
+        for x in spread_starts(lo, hi, x0):  # inside the box: centres of its parts, x0's other entries
             r = solve(x)
             if r is not None and float(r @ r) < best:
                 best, x_best, r_best = float(r @ r), x, r

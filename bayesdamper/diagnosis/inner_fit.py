@@ -102,10 +102,8 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
 
     ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). ``r0``: ``resid(x0)`` where the
     caller has solved there already (``x0`` inside the box; counted as the fit's first solve). Returns the best point
-    found
-    and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could not be
-    differenced; an
-    infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
+    found and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could
+    not be differenced; an infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
     """
     x = np.clip(np.asarray(x0, dtype=float), lo, hi)
     r = resid(x) if r0 is None else r0
