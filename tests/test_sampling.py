@@ -6,7 +6,7 @@ import pytest
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.inference.identify import identify_window
 from bayesdamper.inference.priors import ParameterSpace
-from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
+from bayesdamper.inference.sampling import TAU_RTOL, SamplerSettings, burn_in, sample_posterior
 from bayesdamper.inference.stage2 import StageTwoSettings, shape_report
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record
@@ -48,6 +48,31 @@ def test_budget_exhaustion_is_reported_not_accepted():
                            SamplerSettings(max_steps=200, check_every=100), seed=0)
     assert not res.converged
     assert "budget" in res.reason or "τ" in res.reason or "R-hat" in res.reason
+
+
+def test_a_tau_that_depends_on_the_burn_in_settles():
+    # the measured case, a chain of 3000 steps at its last check estimated at τ 20: τ comes out 27 with the end of the
+    # starting transient kept (a burn-in below 250 steps), 20 without it
+    def tau_of(burn):
+        return np.array([27.0 if burn < 250 else 20.0])
+
+    def checks_until_settled(rule):
+        burn, prev = 0, np.array([20.0])
+        for k, n in enumerate(range(3000, 10_001, 200)):
+            burn = rule(burn, n, prev)
+            tau = tau_of(burn)
+            if abs(tau[0] - prev[0]) < TAU_RTOL * tau[0]:
+                return k
+            prev = tau
+        return None
+
+    def following(burn, n, tau):  # a burn-in that follows each estimate back and forth
+        return burn_in(0, n, tau)
+
+    assert checks_until_settled(following) is None  # 200, 270, 200, ... steps to the budget
+    assert checks_until_settled(burn_in) == 2  # 200, 270, 270: settled
+    assert [burn_in(b, n, np.array([t])) for b, n, t in ((270, 2000, 20.0), (0, 300, 50.0), (90, 600, np.inf))] == [
+        270, 100, 200]
 
 
 def test_same_seed_same_samples():
