@@ -313,6 +313,49 @@ def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
         assert n_b == n_w + 1  # the neighbour's solve; the warm start's is not run twice
 
 
+def test_a_rough_re_fit_stops_at_its_own_tolerances():
+    """A grid point's re-fit (``rough``) stops at :data:`~bayesdamper.diagnosis.engine.ROUGH_TOLERANCES`: from a
+    start of the search's kind (a neighbouring grid point's optimum, its Jacobian carried) it takes fewer solves than
+    the exact re-fit and its sum of squares stays within 1e-3 of the optimum's (the rank of the grid's points,
+    which the global stage compares in factors of 2)."""
+    from bayesdamper.diagnosis import engine as E
+    from bayesdamper.inference.problem import INNER_BOX
+
+    shift = np.array([5.0, 12.0])  # the search's coordinates (log α_V, log p_R), inside INNER_BOX
+    n_rough = n_exact = 0
+    solves = [0]
+
+    class Problem:
+        force = np.zeros(400)
+
+        def __init__(self, resid):
+            self.resid = resid
+
+        def inner_box(self):
+            return INNER_BOX
+
+        def simulate_inner(self, x, eff, flow=None):
+            solves[0] += 1
+            return self.resid(np.asarray(x) - shift), True
+
+    for seed in (1, 2, 3, 4, 5):
+        resid = _decay(seed, shift=0.4)
+        E._PROBLEMS[:] = [Problem(resid)]
+        ref = _reference(resid, np.zeros(2))
+        neighbour = refit(_decay(seed), np.zeros(2), LO, HI)  # the neighbouring point's optimum and Jacobian
+        out = {}
+        for rough in (True, False):
+            solves[0] = 0
+            out[rough] = E._inner_fit((0, None, None, neighbour.x + shift, neighbour.jac, rough, None, False))
+            if rough:
+                n_rough += solves[0]
+            else:
+                n_exact += solves[0]
+        assert out[False][1] == pytest.approx(2 * ref.cost, rel=1e-6)
+        assert 2 * ref.cost * (1 - 1e-9) <= out[True][1] <= 2 * ref.cost * (1 + 1e-3)
+    assert n_rough < n_exact
+
+
 def test_a_model_made_current_re_fits_each_window_from_the_best_of_a_spread_of_starts():
     """A window's (log α_V, log p_R) profile with two basins: a narrow well (a local optimum, SSE about 36) near the
     top of the α_V axis, at whose optimum the warm start lies, on a broad bowl whose bottom (SSE 25) is far from it,

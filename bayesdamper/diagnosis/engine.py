@@ -42,6 +42,13 @@ _PROBLEMS: list = []
 #: (tests/test_confusion.py), whose baseline sits at the box bounds of (α_V, p_R) and whose only candidate gains
 #: 26 in ΔBIC_eff, showed how little slack the search has.
 LS_XTOL, LS_FTOL = 1e-4, 1e-7
+#: Tolerances of a rough re-fit (a grid point's value, :meth:`ProfileEngine.evaluate` with ``rough``), as ``xtol``
+#: and ``ftol`` of :func:`~bayesdamper.diagnosis.inner_fit.refit`: a grid's values only rank the starts of the
+#: refinement, which evaluates its own points at the full tolerances; two points whose sums of squares differ by less
+#: than 1e-4 of their size are equally good starts (the global stage keeps starts within a factor of 2 of the best,
+#: :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_SSE_RATIO`), and 1e-3 in log α_V and log p_R moves a window's
+#: optimum by 0.1 %.
+ROUGH_TOLERANCES = {"xtol": 1e-3, "ftol": 1e-4}
 #: Starts of each window's (α_V, p_R) when a model becomes current (:meth:`ProfileEngine.evaluate` with ``keep``):
 #: the centres of this many equal parts of each log axis of the box, each with the warm start's other own
 #: parameters; the window is re-fitted from the best of them as well as from the warm start, the better kept. A
@@ -72,12 +79,13 @@ def _inner_fit(args):
     (:func:`bayesdamper.diagnosis.inner_fit.refit`, fewer solves than scipy's ``least_squares`` with forward
     differences at every iterate) from the warm start, or from ``near`` (the transient's optimum at a point its
     search has already evaluated) where the solve there has the smaller SSE (one solve more: a neighbour's optimum
-    can lie in another basin, or where these effect values fail); if it does not
-    converge, ``least_squares`` (``trf``) and then Nelder-Mead finish from its best point, unless ``rough`` (a grid
-    point's value, which only ranks the search's starts: the best point of the re-fit, an upper bound of the
-    optimum's SSE, is enough). Effect values whose solve fails at the warm start itself (a chattering valve past the
-    step cap, say) are infeasible at once. With ``spread`` (a model made current) the window is also re-fitted from
-    the best of :func:`spread_starts`, and the better optimum is kept. Returns (x̂, SSE, residual, Jacobian).
+    can lie in another basin, or where these effect values fail); if it does not converge, ``least_squares``
+    (``trf``) and then Nelder-Mead finish from its best point, unless ``rough`` (a grid point's value, which only
+    ranks the search's starts: the best point of the re-fit, an upper bound of the optimum's SSE, is enough; its
+    re-fit stops at :data:`ROUGH_TOLERANCES`). Effect values whose solve fails at the warm start itself (a chattering
+    valve past the step cap, say) are infeasible at once. With ``spread`` (a model made current) the window is also
+    re-fitted from the best of :func:`spread_starts`, and the better optimum is kept. Returns (x̂, SSE, residual,
+    Jacobian).
     """
     k, eff, flow, warm, jac, rough, near, spread = args
     prob = _PROBLEMS[k]
@@ -109,7 +117,7 @@ def _inner_fit(args):
             x0, r_start = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
 
     def finish(x0, r_start):
-        fit = refit(solve, x0, lo, hi, jac, r0=r_start)
+        fit = refit(solve, x0, lo, hi, jac, r0=r_start, **(ROUGH_TOLERANCES if rough else {}))
         if fit.r is None:  # the effect values fail at this (α_V, p_R): infeasible, not searched further
             return x0, 1e300, None, None
         if fit.converged or rough:

@@ -97,11 +97,12 @@ def _lm_step(J, r, x, lo, hi, lam):
 
 
 def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None,
-          r0: np.ndarray | None = None) -> InnerFit:
+          r0: np.ndarray | None = None, xtol: float = XTOL, ftol: float = FTOL) -> InnerFit:
     """Least-squares minimum of ``resid(x)`` (an array, or None for a failed solve) in the box [lo, hi].
 
     ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). ``r0``: ``resid(x0)`` where the
-    caller has solved there already (``x0`` inside the box; counted as the fit's first solve). Returns the best point
+    caller has solved there already (``x0`` inside the box; counted as the fit's first solve). ``xtol``, ``ftol``: the
+    convergence tolerances (module docstring; looser ones for a value that only ranks). Returns the best point
     found and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could
     not be differenced; an infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
     """
@@ -122,7 +123,7 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
     max_solves = MAX_SOLVES_BASE + MAX_SOLVES_PER_PARAMETER * x.size
     while n < max_solves:
         dx0, pred0 = _lm_step(J, r, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
-        if float(np.linalg.norm(dx0)) < XTOL or 0.0 <= pred0 <= FTOL * s:
+        if float(np.linalg.norm(dx0)) < xtol or 0.0 <= pred0 <= ftol * s:
             if moved == 0.0:  # predicted by a Jacobian differenced here
                 return InnerFit(x, s, r, J, n, True)
             J, moved, lam = _forward_jacobian(resid, x, r, hi), 0.0, 0.0
@@ -143,14 +144,14 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
             J = J + np.outer((r_new - r) - J @ dx, dx) / float(dx @ dx)  # Broyden's rank-one correction
             # converged if the step gained less than FTOL, or gained what an exact Jacobian's model predicted to
             # within FTOL (the model's error over the step bounds what a further step could gain)
-            done = (s - s_new <= FTOL * s and moved <= JAC_REUSE) or (moved == 0.0 and
-                                                                    abs(s - s_new - pred) <= FTOL * s)
+            done = (s - s_new <= ftol * s and moved <= JAC_REUSE) or (moved == 0.0 and
+                                                                    abs(s - s_new - pred) <= ftol * s)
             x, r, s = x + dx, r_new, s_new
             if done:
                 return InnerFit(x, s, r, J, n, True)
             moved += float(np.linalg.norm(dx))
             lam = 0.0 if lam < 1e-3 else 0.25 * lam
-        elif moved == 0.0 and pred <= 10.0 * FTOL * s:  # an exact Jacobian's small step failed: the noise floor
+        elif moved == 0.0 and pred <= 10.0 * ftol * s:  # an exact Jacobian's small step failed: the noise floor
             return InnerFit(x, s, r, J, n, True)
         elif moved > 0.0:  # the Jacobian may be what failed: difference it here first
             J, moved = _forward_jacobian(resid, x, r, hi), 0.0
