@@ -132,6 +132,73 @@ def test_findings_of_the_selected_effects_and_the_candidate_rows():
     assert [(f["param"], f["side"]) for f in rows[2]["at_bound"]] == [("poppet_valve.span_Pa", "lower")]
 
 
+class _BoundsEngine(FakeProfileEngine):
+    """One window of 2000 samples whose poppet-valve SSE does not change with the cracking pressure below 10 kPa
+    (flat down to the bound, 1 kPa) and grows by 1 % per unit of log span below its upper bound (100 MPa), and above
+    it falls on as much (``saturates``: stays); the residual is white, so N_eff is about the window's length."""
+
+    problems = [fake_problem(np.ones(2000))]
+    noise = np.random.default_rng(7).standard_normal(2000)
+
+    def __init__(self, saturates=False):
+        self.calls, self.saturates = [], saturates
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
+        self.calls.append(keep)
+        p = eff["poppet_valve"]
+        span = math.log(1e8 / p["span_Pa"])
+        sse = 2000.0 * (1.0 + 0.01 * max(0.0, math.log(p["cracking_pressure_Pa"] / 1e4))
+                        + 0.01 * (max(span, 0.0) if self.saturates else span))
+        return np.array([sse]), np.zeros((1, 2)), [self.noise * math.sqrt(sse / 2000.0)]
+
+
+def test_a_parameter_on_a_bound_is_unresolved_one_sided_or_a_misfit_by_its_profile_there():
+    """:func:`bound_resolution` moves each bound parameter a tenth of its range inside and as far past the bound.
+    The cracking pressure's fit does not change inside (deviance 0: unresolved). The span's gets worse inside
+    (N_eff x 1 % x 0.69 = 13.8, above 2.71) and better past the bound (the form misfits), or, where the fit saturates
+    past the bound, no better there (a one-sided bound). The findings say so; no model is made current."""
+    from bayesdamper.diagnosis.findings import FLAT_DEVIANCE, bound_resolution
+    from bayesdamper.diagnosis.global_stage import GLOBAL_DISTINCT
+
+    fixed = {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5, "cracking_pressure_Pa": 1.0e3,
+                              "span_Pa": 1.0e8, "bleed_fraction": 0.5}}
+    n_eff = float(cand.effective_sizes([_BoundsEngine.noise])[0])
+    step = math.log1p(0.01 * GLOBAL_DISTINCT * math.log(1000.0))
+    for saturates in (False, True):
+        engine = _BoundsEngine(saturates)
+        checks = bound_resolution(engine, ["poppet_valve"], fixed, ["poppet_valve"], lambda e: None, lambda e: e)
+        assert engine.calls and not any(engine.calls)
+        by = {c["param"]: c for c in checks}
+        assert set(by) == {"cracking_pressure_Pa", "span_Pa"}
+        pc, span = by["cracking_pressure_Pa"], by["span_Pa"]
+        assert pc["inside"] == pytest.approx(1e3 * 3000.0 ** GLOBAL_DISTINCT)  # a tenth of the log range up
+        assert pc["past"] == pytest.approx(1e3 / 3000.0 ** GLOBAL_DISTINCT)
+        assert pc["delta_deviance"] == pytest.approx(0.0, abs=1e-9) and pc["verdict"] == "unresolved"
+        assert span["inside"] == pytest.approx(1e8 / 1000.0 ** GLOBAL_DISTINCT)
+        assert span["delta_deviance"] == pytest.approx(n_eff * step, rel=1e-6)
+        assert span["delta_deviance"] > FLAT_DEVIANCE
+        past = 0.0 if saturates else n_eff * math.log1p(-0.01 * GLOBAL_DISTINCT * math.log(1000.0))
+        assert span["delta_deviance_past"] == pytest.approx(past, rel=1e-6, abs=1e-9)
+        assert span["verdict"] == ("one-sided" if saturates else "misfit")
+        found = {f["param"]: f for f in bound_findings(["poppet_valve"], fixed, ["poppet_valve"], checks)}
+        assert found["cracking_pressure_Pa"]["text"].startswith(
+            f"poppet_valve: cracking_pressure_Pa ends on its lower bound (1000), and the fit is the same at "
+            f"{pc['inside']:.4g} (deviance +0.00, within the 90 % level 2.71)")
+        assert found["cracking_pressure_Pa"]["text"].endswith("read it as a one-sided bound, not a value")
+        assert found["span_Pa"]["resolution"]["verdict"] == span["verdict"]
+        if saturates:
+            assert found["span_Pa"]["text"].endswith(f"the data bound it on one side only; read it as at least "
+                                                     f"{span['inside']:.4g}, not a value")
+        else:
+            assert found["span_Pa"]["text"].endswith("the form does not fit these data as parametrised; its value "
+                                                     "is not a result")
+    # a check of another value (another fit) does not apply
+    moved = {"poppet_valve": dict(fixed["poppet_valve"], cracking_pressure_Pa=1.001e3)}
+    again = {f["param"]: f for f in bound_findings(["poppet_valve"], moved, ["poppet_valve"], checks)}
+    assert "resolution" not in again["cracking_pressure_Pa"] and "resolution" in again["span_Pa"]
+    assert again["cracking_pressure_Pa"]["text"].endswith("its value is not a result")
+
+
 # ------------------------------------------------------------------------------------------ J per speed and kind
 
 

@@ -21,7 +21,7 @@ from bayesdamper.diagnosis.calibrated import (
     SEARCH_MIN_S,
 )
 from bayesdamper.diagnosis.candidates import CandidateSpec, pooled_j, reset_search_cost, search_cost, spec_bound_flags
-from bayesdamper.diagnosis.findings import findings_text
+from bayesdamper.diagnosis.findings import FLAT_DEVIANCE, findings_text
 from bayesdamper.diagnosis.global_stage import search_cost_by_step
 from bayesdamper.diagnosis.loop import MIN_J_REDUCTION, SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
@@ -108,18 +108,46 @@ def _specs_by_label(names: list) -> dict:
 #: The sentence of a parameter on its bound (:func:`bound_findings`).
 BOUND_TEXT = ("{effect}: {param} ends on its {side} bound ({value:.4g}): the form does not fit these data as "
               "parametrised; its value is not a result")
+#: The sentences of a parameter on its bound that the data do not resolve there, or bound on one side only
+#: (:func:`bayesdamper.diagnosis.findings.bound_resolution`).
+UNRESOLVED_TEXT = ("{effect}: {param} ends on its {side} bound ({value:.4g}), and the fit is the same at {inside:.4g} "
+                   "(deviance {delta_deviance:+.2f}, within the 90 % level {level:.2f}): the data do not resolve it "
+                   "between these values; read it as a one-sided bound, not a value")
+ONE_SIDED_TEXT = ("{effect}: {param} ends on its {side} bound ({value:.4g}); the fit is worse at {inside:.4g} "
+                  "(deviance {delta_deviance:+.2f}) and no better at {past:.4g} past the bound (deviance "
+                  "{delta_deviance_past:+.2f}, the 90 % level {level:.2f}): the data bound it on one side only; read "
+                  "it as {relation} {inside:.4g}, not a value")
 
 
-def bound_findings(selected: list[str], fixed: dict, names: list) -> list[dict]:
+def bound_findings(selected: list[str], fixed: dict, names: list, resolution: list | None = None) -> list[dict]:
     """The selected effects' parameters that end on a bound of their search
     (:func:`bayesdamper.diagnosis.candidates.spec_bound_flags` of the final values ``fixed``), each
-    ``{"effect", "param", "value", "bound", "side", "text"}`` (:data:`BOUND_TEXT`)."""
+    ``{"effect", "param", "value", "bound", "side", "text"}`` (:data:`BOUND_TEXT`). ``resolution``: the checks of
+    :func:`~bayesdamper.diagnosis.findings.bound_resolution` (of the same values); a parameter they find
+    unresolved at its bound, or bound on one side only, gets :data:`UNRESOLVED_TEXT` or :data:`ONE_SIDED_TEXT`
+    instead, and every checked one its check (``"resolution"``)."""
     specs = _specs_by_label(names)
+    checks = {(c["effect"], c["param"]): c for c in resolution or []}
     out = []
     for label in selected:
         spec = specs.get(label) or CandidateSpec(label)
         for f in spec_bound_flags(spec, fixed.get(spec.effect) or {}):
-            out.append({"effect": label, **f, "text": BOUND_TEXT.format(effect=label, **f)})
+            c = checks.get((label, f["param"]))
+            if c is not None and not math.isclose(c["value"], f["value"], rel_tol=1e-9):
+                c = None  # a check of other values
+            verdict = c["verdict"] if c is not None else "misfit"
+            more = {k: c[k] for k in ("inside", "delta_deviance", "past", "delta_deviance_past")} if c else {}
+            if verdict == "unresolved":
+                text = UNRESOLVED_TEXT.format(effect=label, level=FLAT_DEVIANCE, **more, **f)
+            elif verdict == "one-sided":
+                text = ONE_SIDED_TEXT.format(effect=label, level=FLAT_DEVIANCE, relation="at least" if f["side"] ==
+                                             "upper" else "at most", **more, **f)
+            else:
+                text = BOUND_TEXT.format(effect=label, **f)
+            row = {"effect": label, **f, "text": text}
+            if c is not None:
+                row["resolution"] = {**more, "verdict": verdict}
+            out.append(row)
     return out
 
 
@@ -151,11 +179,12 @@ def _take_search_cost() -> tuple[dict, dict]:
 
 def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise, noises, rows, structure,
                         signature, rounds, selected, fixed, names, settings, final_settings, credible_mass: float,
-                        seed: int, prov: dict) -> dict:
+                        seed: int, prov: dict, bound_checks: list | None = None) -> dict:
     """The diagnosis as plain values (``diagnosis.json``): everything :func:`bayesdamper.run.diagnose.run_diagnosis`
     computed, with J before and after per window and per speed (and kind of step, :func:`j_by_speed`), drift before
     and after, the structure of the residual after, the selected effects' parameters on a bound (``findings``,
-    :func:`bound_findings`; every candidate row of ``rounds`` gets its ``at_bound``) and the searches' cost per stage.
+    :func:`bound_findings`, with the search's ``bound_checks`` of them; every candidate row of ``rounds`` gets its
+    ``at_bound``) and the searches' cost per stage.
     """
     forces = [w.force for w in windows]
     base_entries = [r.entry for r in base]
@@ -188,7 +217,7 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
                   "started_from": {e["id"]: e.get("start", "own") for e in final_entries}},
         "J_pooled_by_velocity_mm_s": per_velocity,
         "J_by_speed": j_by_speed(windows, base_resid, final_resid, base_entries, final_entries),
-        "findings": bound_findings(selected, fixed, names),
+        "findings": bound_findings(selected, fixed, names, bound_checks),
         "p_R_split": {"before": p_r_split(base_entries), "after": p_r_split(final_entries)},
         "drift_before": drift_summary(base_entries, credible_mass, seed) if len(base_entries) >= 3 else {},
         "drift_after": drift_summary(final_entries, credible_mass, seed) if len(final_entries) >= 3 else {},

@@ -26,6 +26,7 @@ from bayesdamper.diagnosis.calibrated import (
 )
 from bayesdamper.diagnosis.comparison import DEFAULT_MODELS, compare_models, comparison_text
 from bayesdamper.diagnosis.engine import ProfileEngine
+from bayesdamper.diagnosis.findings import bound_resolution
 from bayesdamper.diagnosis.loop import select_effects
 from bayesdamper.diagnosis.residual import describe_residual, structure_test, summarise_structure
 from bayesdamper.diagnosis.signature import model_signals, residual_cross_correlation, residual_signature
@@ -158,6 +159,7 @@ class Prepared:
     compare: bool = True
     comparison: dict | None = None
     search_optima: list | None = None  # per window: its own parameters at the loop's final model (unpack_inner)
+    bound_checks: list | None = None  # the selection's parameters on a bound, resolved or not (bound_resolution)
 
     @property
     def speeds(self) -> list[float]:
@@ -324,6 +326,11 @@ def search_effects(p: Prepared) -> tuple[list, dict, list]:
             selected, fixed, rounds = select_effects(engine, p.names, p.forces, p.flow_for, p.progress, p.speeds)
             # the loop's last evaluation of the model it ended with left each window's optimum as its warm start
             p.search_optima = [prob.unpack_inner(x) for prob, x in zip(p.problems, engine.warm[:engine.n], strict=True)]
+            # do the data resolve a selected parameter that ends on a bound? (the carried Jacobians put back: the
+            # comparison below re-fits from them)
+            carried = list(engine.jac)
+            p.bound_checks = bound_resolution(engine, selected, fixed, p.names, p.flow_for, effect_argument)
+            engine.jac = carried
             p.progress.note(f"{len(rounds)} round(s), selected: {', '.join(selected) or 'none'}")
         if p.compare:
             with p.progress.phase("diagnose: model comparison", total=len(DEFAULT_MODELS), unit="model"):
@@ -368,7 +375,7 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
             signature["cross_correlation_before"]["driver"])
     diagnosis = summarise_diagnosis(ds, windows, p.base, final, p.base_resid, final_resid, p.noise, p.noises, p.rows,
                                     p.structure, signature, rounds, selected, fixed, p.names, p.settings,
-                                    final_settings(p.settings), p.credible_mass, p.seed, p.prov)
+                                    final_settings(p.settings), p.credible_mass, p.seed, p.prov, p.bound_checks)
     diagnosis.update(extra or {})
     if p.comparison is not None:
         diagnosis["model_comparison"] = p.comparison
