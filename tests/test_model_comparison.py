@@ -42,26 +42,37 @@ def true_pair(v: float) -> tuple[float, float]:
     return ALPHA_1 * math.exp(ALPHA_SLOPE * s), P_R_1 * math.exp(P_R_SLOPE * s)
 
 
-def synthetic_windows():
-    """Per speed a start from rest and the first reversal, eq. (7) with (α_V, p_R) on the exact law, no noise."""
+def _window_set(forces_of):
+    """Per speed a start from rest and the first reversal with (α_V, p_R) on the exact law, no noise: their problems,
+    kinds, speeds and true pairs. ``forces_of(v, alpha, p_r, grids)``: each window's force [N] at its sample times
+    (``grids``: kind -> times)."""
     problems, kinds, speeds, truth = [], [], [], []
     for v in SPEEDS:
         exc = PiecewiseLinear.triangle(AMPLITUDE, v, rest=REST, cycles=1.25)
         alpha, p_r = true_pair(v)
-        starts = {"initial": REST, "reversal": REST + AMPLITUDE / v}
-        grids = {k: t0 + np.arange(0.0, WINDOW_S, 1.0 / RATE) for k, t0 in starts.items()}
-        t_all = np.unique(np.concatenate([np.arange(0.0, REST, 0.1), *grids.values()]))
-        dp = simulate_single_state(t_all, exc, D, FLOW, DynamicParameters(alpha, p_r), dp0=0.0, t0=0.0)
-        force = D.piston_area * dp
-        for kind, t in grids.items():
-            sel = np.searchsorted(t_all, t)
-            f = force[sel]
+        grids = {k: t0 + np.arange(0.0, WINDOW_S, 1.0 / RATE)
+                 for k, t0 in (("initial", REST), ("reversal", REST + AMPLITUDE / v))}
+        for kind, f in forces_of(v, alpha, p_r, grids).items():
+            t = grids[kind]
             problems.append(EffectsProblem(f"v{v * 1e3:.2f}_{kind}", t, f, float(t[0]), float(f[0]), 0.0,
                                            as_drive(exc), D, FLOW))
             kinds.append(kind)
             speeds.append(v)
             truth.append((alpha, p_r))
     return problems, kinds, speeds, truth
+
+
+def synthetic_windows():
+    """The windows of :func:`_window_set`, eq. (7) by bayesdamper's own simulator."""
+
+    def forces_of(v, alpha, p_r, grids):
+        exc = PiecewiseLinear.triangle(AMPLITUDE, v, rest=REST, cycles=1.25)
+        t_all = np.unique(np.concatenate([np.arange(0.0, REST, 0.1), *grids.values()]))
+        dp = simulate_single_state(t_all, exc, D, FLOW, DynamicParameters(alpha, p_r), dp0=0.0, t0=0.0)
+        force = D.piston_area * dp
+        return {kind: force[np.searchsorted(t_all, t)] for kind, t in grids.items()}
+
+    return _window_set(forces_of)
 
 
 @pytest.fixture(scope="module")
@@ -188,25 +199,16 @@ def test_true_model_predicts_held_out_speeds_to_the_noise_floor(synthetic):
 
 
 def independent_windows():
-    """The windows of :func:`synthetic_windows` with their forces from the independent reference (scipy Radau,
+    """The windows of :func:`_window_set` with their forces from the independent reference (scipy Radau,
     ``tests/independent.py``: no bayesdamper code) instead of bayesdamper's own simulator."""
     from independent import PAPER_FLOW as REF_FLOW
     from independent import RIG_A, simulate, triangle_input
 
-    problems, kinds, speeds, truth = [], [], [], []
-    for v in SPEEDS:
-        exc = PiecewiseLinear.triangle(AMPLITUDE, v, rest=REST, cycles=1.25)
-        inp = triangle_input(v, AMPLITUDE, 0.0, REST, cycles=1.25)  # the same motion
-        alpha, p_r = true_pair(v)
-        for kind, t0 in (("initial", REST), ("reversal", REST + AMPLITUDE / v)):
-            t = t0 + np.arange(0.0, WINDOW_S, 1.0 / RATE)
-            f = simulate(inp, t, RIG_A, REF_FLOW, alpha, p_r, dp0=0.0, t0=0.0)
-            problems.append(EffectsProblem(f"v{v * 1e3:.2f}_{kind}", t, f, float(t[0]), float(f[0]), 0.0,
-                                           as_drive(exc), D, FLOW))
-            kinds.append(kind)
-            speeds.append(v)
-            truth.append((alpha, p_r))
-    return problems, kinds, speeds, truth
+    def forces_of(v, alpha, p_r, grids):
+        inp = triangle_input(v, AMPLITUDE, 0.0, REST, cycles=1.25)  # the motion of _window_set's triangle
+        return {kind: simulate(inp, t, RIG_A, REF_FLOW, alpha, p_r, dp0=0.0, t0=0.0) for kind, t in grids.items()}
+
+    return _window_set(forces_of)
 
 
 def test_the_in_sample_fits_leave_a_corner_of_the_box():
