@@ -46,6 +46,7 @@ from bayesdamper.inference.stage2 import (
     task_seed,
     thinned_chains,
 )
+from bayesdamper.inference.start import least_squares_start, residual_sse
 
 __all__ = ["better_start", "identify_window", "window_noise"]
 
@@ -108,13 +109,6 @@ def identify_window(window, damper: DamperConstants, flow: FlowCoefficients | No
                            start if effects is not None else None)
 
 
-def _sse(jp, theta) -> float:
-    """Sum of squares of the joint problem's residual (pre-step samples included) at ``theta``; inf if the solve
-    fails."""
-    r = jp.residual(np.asarray(theta, dtype=float))
-    return float(r @ r) if r is not None and np.all(np.isfinite(r)) else float("inf")
-
-
 def better_start(jp, own: list, hint: dict | None, space) -> tuple[list, str]:
     """``own`` (log α_V, log p_R, Δp0, flow...) or the same with the hint's (α_V, p_R) (clipped into ``space``),
     whichever has the smaller residual sum of squares (:func:`identify_window`'s ``start``), and which it is:
@@ -123,7 +117,7 @@ def better_start(jp, own: list, hint: dict | None, space) -> tuple[list, str]:
         return own, "own"
     alt = list(own)
     alt[:2] = np.clip(np.log([hint["alpha_V"], hint["p_R_Pa"]]), space.lower[:2], space.upper[:2])
-    return (alt, "search optimum") if _sse(jp, alt) < _sse(jp, own) else (own, "own")
+    return (alt, "search optimum") if residual_sse(jp, alt) < residual_sse(jp, own) else (own, "own")
 
 
 def window_noise(window, residual: np.ndarray):
@@ -179,7 +173,6 @@ def _cut_by_zero(x: np.ndarray, lower: np.ndarray, cov: np.ndarray | None) -> np
 def _identify_joint(window, damper, flow, settings: StageTwoSettings, seed: int, out_nc, provenance, progress,
                     prior, effects=None, hint: dict | None = None) -> WindowResult:
     from bayesdamper.inference import cut, joint
-    from bayesdamper.inference.start import least_squares_start
 
     t0 = time.perf_counter()
     code = {"plateau": joint.PLATEAU, "ar1": joint.AR1, "white": joint.WHITE}[settings.noise_model]

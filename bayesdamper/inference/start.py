@@ -49,6 +49,13 @@ def quasi_static_flow(time: np.ndarray, force: np.ndarray, velocity: np.ndarray,
     return flow4
 
 
+def residual_sse(jp, theta) -> float:
+    """Sum of squares of a :class:`~bayesdamper.inference.joint.JointProblem`'s residual (pre-step samples included)
+    at ``theta``; inf where the solve fails or is not finite."""
+    r = jp.residual(np.asarray(theta, dtype=float))
+    return float(r @ r) if r is not None and np.all(np.isfinite(r)) else math.inf
+
+
 def least_squares_start(jp, space, hint: dict | None = None) -> tuple[np.ndarray, float, bool]:
     """Least-squares optimum of eq. (9) over (log α_V, log p_R, Δp0, C_L12, C_Q12, C_L21, C_Q21) of a
     :class:`~bayesdamper.inference.joint.JointProblem` (pre-step samples included), its J over the window, and
@@ -82,8 +89,7 @@ def least_squares_start(jp, space, hint: dict | None = None) -> tuple[np.ndarray
     for a in START_ALPHA_V:
         for p in START_P_R:
             th = np.r_[math.log(a), math.log(p), dp0, flow4]
-            r = jp.residual(th)
-            s = float(r @ r) if r is not None else math.inf
+            s = residual_sse(jp, th)
             if s < best_s:
                 best, best_s = th, s
     hinted = False
@@ -92,8 +98,7 @@ def least_squares_start(jp, space, hint: dict | None = None) -> tuple[np.ndarray
                    hint["start_force_N"] / area if "start_force_N" in hint else dp0,
                    np.asarray(hint["flow"], dtype=float) if "flow" in hint else flow4]
         th = np.clip(th, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        r = jp.residual(th)
-        s = float(r @ r) if r is not None else math.inf
+        s = residual_sse(jp, th)
         if s < best_s:
             best, best_s, hinted = th, s, True
     if best is None:
@@ -102,8 +107,7 @@ def least_squares_start(jp, space, hint: dict | None = None) -> tuple[np.ndarray
     x0 = np.clip(best, lo + eps, hi - eps)
     scale = np.r_[0.1, 0.1, max(abs(dp0), 0.01 * (hi[2] - lo[2])), np.maximum(np.abs(x0[3:7]), 1e-3 * (hi - lo)[3:7])]
     sol = least_squares(resid, x0, bounds=(lo, hi), x_scale=scale, diff_step=FD_STEP, max_nfev=MAX_NFEV)
-    r = jp.residual(sol.x)
-    x = sol.x if r is not None and float(r @ r) <= best_s else best
+    x = sol.x if residual_sse(jp, sol.x) <= best_s else best
     f, ok = jp.simulate_window(x)
     j = float(np.linalg.norm(f - jp.force) / np.linalg.norm(jp.force)) if ok else math.inf
     return x, j, hinted
