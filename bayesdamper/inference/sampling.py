@@ -3,10 +3,10 @@
 emcee's walkers are not independent chains, so R-hat is computed across several *independently
 started* ensembles, each with its own random generator and its own dispersed start. The stopping rule
 is the integrated autocorrelation time τ: every ensemble runs until its post-burn-in chain is longer
-than ``TAU_FACTOR`` τ for every parameter and the largest τ, which sets that length, has settled (changed by
-less than ``TAU_RTOL`` between checks). Only then are the rank-normalised R-hat (across ensembles) and the bulk
-ESS checked against ``GOOD_RHAT`` and ``MIN_ESS``. A run that exhausts its step budget first is reported as not
-converged.
+than ``TAU_FACTOR`` τ for every parameter and the largest τ, which sets that length, has settled (changed
+between checks by less than ``TAU_RTOL`` or than the estimate's own sampling noise, :func:`tau_settled`). Only
+then are the rank-normalised R-hat (across ensembles) and the bulk ESS checked against ``GOOD_RHAT`` and
+``MIN_ESS``. A run that exhausts its step budget first is reported as not converged.
 """
 
 from __future__ import annotations
@@ -28,15 +28,21 @@ from bayesdamper.inference.proposals import (
 )
 
 __all__ = ["GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "burn_in",
-           "independence_acceptance", "initial_positions", "laplace_covariance", "pilot_proposal", "sample_posterior"]
+           "independence_acceptance", "initial_positions", "laplace_covariance", "pilot_proposal", "sample_posterior",
+           "tau_change_sd", "tau_settled"]
 
 #: Chain length required, in integrated autocorrelation times (emcee's documented rule of thumb).
 TAU_FACTOR = 50.0
-#: Relative change of the largest τ between two checks below which τ counts as settled. The largest τ is what the
-#: length rule uses; asking every parameter's τ to settle (each a noisy estimate from a chain of some 50 τ: on a
-#: 7-parameter window of cycles they moved by 5-10 % between checks long after R-hat, ESS and the length were met)
-#: ran chains half as long again as the rule asks.
+#: Relative change of the largest τ between two checks below which τ counts as settled (:func:`tau_settled`). The
+#: largest τ is what the length rule uses; asking every parameter's τ to settle (each a noisy estimate from a chain of
+#: some 50 τ: on a 7-parameter window of cycles they moved by 5-10 % between checks long after R-hat, ESS and the
+#: length were met) ran chains half as long again as the rule asks.
 TAU_RTOL = 0.05
+#: emcee's automatic window constant c of the τ estimate: the window M is the smallest with M >= c τ̂(M).
+TAU_WINDOW_C = 5
+#: A change of τ̂ between checks within this many standard deviations of its sampling noise counts as settled
+#: (:func:`tau_settled`): a two-sided 95 % band, so a stationary chain passes about 19 checks in 20.
+TAU_NOISE_SDS = 2.0
 #: Largest acceptable rank-normalised split R-hat across ensembles (Vehtari et al. 2021).
 GOOD_RHAT = 1.01
 #: Smallest acceptable bulk effective sample size per parameter.
@@ -235,6 +241,39 @@ def burn_in(burn: int, n_steps: int, tau: np.ndarray) -> int:
     return max(burn, min(n_steps // 3, int(math.ceil(BURN_TAUS * np.max(tau)))))
 
 
+def tau_change_sd(tau: float, kept: int, added: int, n_walkers: int) -> float:
+    """Standard deviation of the change of an ensemble's τ estimate from one check to the next (``added`` steps
+    more, ``kept`` steps after the burn-in now) that sampling noise alone makes, for a chain whose τ is ``tau``.
+
+    The estimate from N draws with a window M has variance 2 (2M + 1) τ² / N (Sokal 1997, for large N); emcee
+    averages the autocorrelation of the ``n_walkers`` walkers, N = kept × walkers, and its window is M = c τ
+    (:data:`TAU_WINDOW_C`). The later estimate re-uses the earlier one's draws and adds ``added`` steps, so the two
+    differ by the variance times added / (kept - added), as two means over nested samples do.
+    """
+    if not (math.isfinite(tau) and tau > 0.0) or kept <= added or n_walkers < 1:
+        return 0.0
+    var = 2.0 * (2.0 * TAU_WINDOW_C * tau + 1.0) * tau * tau / (kept * n_walkers)
+    return math.sqrt(var * added / (kept - added))
+
+
+def tau_settled(tau: np.ndarray, tau_prev: np.ndarray | None, kept: int, added: int, n_walkers: int,
+                rtol: float = TAU_RTOL) -> bool:
+    """Has the largest τ settled between two checks? Its change is below ``rtol`` of it, or within
+    :data:`TAU_NOISE_SDS` standard deviations of the change sampling noise alone makes (:func:`tau_change_sd`).
+
+    On short chains of small τ the estimate's noise exceeds any fixed tolerance: at τ 2, 8 walkers and 150 steps
+    kept, consecutive estimates differ by about 10 % with no trend, and a 5 % rule alone passes one check in two
+    or three, running chains many times longer than the length, R-hat and ESS rules ask. On long chains the noise
+    shrinks below ``rtol``, which then decides as before.
+    """
+    if tau_prev is None:
+        return False
+    t, t_prev = float(np.max(tau)), float(np.max(tau_prev))
+    if not (math.isfinite(t) and math.isfinite(t_prev)):
+        return False
+    return abs(t - t_prev) < max(rtol * t, TAU_NOISE_SDS * tau_change_sd(t, kept, added, n_walkers))
+
+
 def _tau(chain: np.ndarray) -> np.ndarray:
     """τ per parameter of one ensemble's chain, shape (n_steps, n_walkers, ndim).
 
@@ -244,7 +283,7 @@ def _tau(chain: np.ndarray) -> np.ndarray:
     import emcee
 
     with np.errstate(invalid="ignore", divide="ignore"):
-        tau = emcee.autocorr.integrated_time(chain, c=5, tol=0, quiet=True)
+        tau = emcee.autocorr.integrated_time(chain, c=TAU_WINDOW_C, tol=0, quiet=True)
     return np.where(np.isfinite(tau), tau, np.inf)
 
 
@@ -393,9 +432,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         kept = chains[:, burn:]
         tau = np.max([_tau(c) for c in kept], axis=0)
         long_enough = bool(np.all(kept.shape[1] > settings.tau_factor * tau))
-        with np.errstate(invalid="ignore"):
-            settled = tau_prev is not None and bool(abs(np.max(tau) - np.max(tau_prev))
-                                                    < settings.tau_rtol * np.max(tau))
+        settled = tau_settled(tau, tau_prev, kept.shape[1], n, settings.n_walkers, settings.tau_rtol)
         tau_prev = tau
         # R-hat and ESS decide only once the chain is long enough and τ has settled; they are also reported at
         # the step budget and in the progress line (the same values a computation at every check gives there)
