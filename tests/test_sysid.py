@@ -12,6 +12,7 @@ Interval coverage is judged over a fixed block of seeds against a binomial bound
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -20,7 +21,13 @@ import pytest
 from scipy import signal, stats
 
 from bayesdamper.core.errors import DataError, SettingsError
-from bayesdamper.diagnosis.sysid import TransientSignals, cross_correlation, identify_residual_dynamics
+from bayesdamper.diagnosis.sysid import (
+    PoleEstimate,
+    TransientSignals,
+    _summary,
+    cross_correlation,
+    identify_residual_dynamics,
+)
 
 #: Sampling rate of the synthetic records [Hz] (decimated by 10 to the module's default 50 Hz).
 FS = 500.0
@@ -92,6 +99,25 @@ def min_covered(n: int) -> int:
 
 def covers(interval, truth) -> bool:
     return interval is not None and interval[0] <= truth <= interval[1]
+
+
+def test_a_pole_whose_interval_reaches_zero_is_reported_as_not_resolved():
+    """A pole whose frequency (pair) or time constant (real) interval reaches 0 cannot be told from no pole: the
+    summary says so beside it. The unresolved poles are rig-A's, as measured: a well-damped pair at 40 Hz with a
+    frequency interval of [-338, 418] Hz and a 0.026 s time constant with [-0.012, 0.063] s."""
+    data = dp_driver(make_transients(second_order(1.7, 0.25, DP_GAIN * DP_SCALE), seed=SEED_SECOND_ORDER))
+    res = identify_residual_dynamics(data)
+    (pole,) = res.fit.poles
+    assert pole.resolved
+    loose = PoleEstimate("oscillatory", 39.96, (-338.4, 418.3), 0.78, (-3.97, 5.53))
+    fast = PoleEstimate("real", time_constant_s=0.0256, time_constant_interval=(-0.0118, 0.0631))
+    slow = PoleEstimate("real", time_constant_s=0.825, time_constant_interval=(0.255, 1.395))
+    assert not loose.resolved and not fast.resolved and slow.resolved
+    assert PoleEstimate("real", time_constant_s=0.5).resolved  # no interval: nothing claimed
+    text = _summary(dataclasses.replace(res.fit, poles=(pole, loose, slow, fast)), res.chosen, res.chosen)
+    assert text.count("not resolved") == 2
+    assert f"{pole.frequency_hz:.3g} Hz, damping {pole.damping:.2f}; 40 Hz, damping 0.78 (not resolved" in text
+    assert "time constant 0.825 s; time constant 0.0256 s (not resolved: its 90 % interval reaches 0)," in text
 
 
 def test_second_order_linear_driver_is_identified():

@@ -146,6 +146,14 @@ class PoleEstimate(_AsDict):
     time_constant_s: float | None = None
     time_constant_interval: tuple[float, float] | None = None
 
+    @property
+    def resolved(self) -> bool:
+        """The data resolve the pole: the interval of its frequency (a pair) or its time constant (a real pole) lies
+        above 0. An interval that reaches 0 holds a pole that vanishes (no dynamics), so the data cannot tell this
+        pole from none. True when no interval could be computed (None or NaN): nothing is claimed then."""
+        iv = self.frequency_interval if self.kind == "oscillatory" else self.time_constant_interval
+        return iv is None or any(math.isnan(v) for v in iv) or iv[0] > 0.0
+
 
 @dataclass(frozen=True)
 class FilterFit(_AsDict):
@@ -375,8 +383,10 @@ def _summary(fit: FilterFit | None, chosen: CandidateScore | None, best: Candida
         return "no structure could be fitted" if best is None else (
             f"no dynamics found: best candidate {best.driver} ({best.law}), order {best.order} has held-out "
             f"score {best.score:.3f} ± {best.score_se:.3f}: does not beat predicting zero (1)")
-    parts = [f"{pe.frequency_hz:.3g} Hz, damping {pe.damping:.2f}" if pe.kind == "oscillatory"
-             else f"time constant {pe.time_constant_s:.3g} s" for pe in fit.poles]
+    unresolved = f" (not resolved: its {fit.level * 100:.0f} % interval reaches 0)"
+    parts = [(f"{pe.frequency_hz:.3g} Hz, damping {pe.damping:.2f}" if pe.kind == "oscillatory"
+              else f"time constant {pe.time_constant_s:.3g} s") + ("" if pe.resolved else unresolved)
+             for pe in fit.poles]
     return (f"unnamed dynamics: {'; '.join(parts)}, driven by {fit.driver} ({fit.law}), order {fit.order} "
             f"(held-out score {chosen.score:.3f})")
 
