@@ -114,6 +114,8 @@ def test_a_pole_whose_interval_reaches_zero_is_reported_as_not_resolved():
     slow = PoleEstimate("real", time_constant_s=0.825, time_constant_interval=(0.255, 1.395))
     assert not loose.resolved and not fast.resolved and slow.resolved
     assert PoleEstimate("real", time_constant_s=0.5).resolved  # no interval: nothing claimed
+    assert loose.as_dict()["resolved"] is False and slow.as_dict()["resolved"] is True  # diagnosis.json has it
+    assert res.as_dict()["fit"]["poles"][0]["resolved"] is True
     text = _summary(dataclasses.replace(res.fit, poles=(pole, loose, slow, fast)), res.chosen, res.chosen)
     assert text.count("not resolved") == 2
     assert f"{pole.frequency_hz:.3g} Hz, damping {pole.damping:.2f}; 40 Hz, damping 0.78 (not resolved" in text

@@ -154,6 +154,10 @@ class PoleEstimate(_AsDict):
         iv = self.frequency_interval if self.kind == "oscillatory" else self.time_constant_interval
         return iv is None or any(math.isnan(v) for v in iv) or iv[0] > 0.0
 
+    def as_dict(self) -> dict:
+        """The fields as plain values, and ``resolved``."""
+        return {**super().as_dict(), "resolved": self.resolved}
+
 
 @dataclass(frozen=True)
 class FilterFit(_AsDict):
