@@ -23,6 +23,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 #: Gauss-Newton step [log units] below which the fit has converged (with a fresh Jacobian).
 XTOL = 1e-4
@@ -70,30 +71,80 @@ def _forward_jacobian(resid, x, r, hi):
     return J
 
 
+@njit(cache=True)
+def _lm_kernel(A, g, x, lo, hi, lam):  # pragma: no cover - compiled
+    """:func:`lm_step` compiled: (dx, predicted decrease, solved). ``solved`` False: the damped reduced system is
+    singular (a zero pivot of Gaussian elimination with partial pivoting); the caller then takes least squares."""
+    n = x.size
+    free = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if not ((x[i] <= lo[i] and g[i] > 0.0) or (x[i] >= hi[i] and g[i] < 0.0)):
+            free[m] = i
+            m += 1
+    dx = np.zeros(n)
+    M = np.empty((m, m))
+    b = np.empty(m)
+    for a in range(m):
+        for c in range(m):
+            M[a, c] = A[free[a], free[c]]
+        M[a, a] += lam * A[free[a], free[a]]
+        b[a] = -g[free[a]]
+    for c in range(m):  # forward elimination, partial pivoting
+        p = c
+        for a in range(c + 1, m):
+            if abs(M[a, c]) > abs(M[p, c]):
+                p = a
+        if M[p, c] == 0.0:
+            return dx, 0.0, False
+        if p != c:
+            for k in range(m):
+                M[c, k], M[p, k] = M[p, k], M[c, k]
+            b[c], b[p] = b[p], b[c]
+        for a in range(c + 1, m):
+            f = M[a, c] / M[c, c]
+            for k in range(c, m):
+                M[a, k] -= f * M[c, k]
+            b[a] -= f * b[c]
+    for c in range(m - 1, -1, -1):
+        v = b[c]
+        for k in range(c + 1, m):
+            v -= M[c, k] * dx[free[k]]
+        dx[free[c]] = v / M[c, c]
+    for i in range(n):
+        dx[i] = min(max(x[i] + dx[i], lo[i]), hi[i]) - x[i]
+    quad = 0.0
+    lin = 0.0
+    for i in range(n):
+        lin += g[i] * dx[i]
+        for k in range(n):
+            quad += dx[i] * A[i, k] * dx[k]
+    return dx, -(2.0 * lin + quad), True
+
+
 def lm_step(A: np.ndarray, g: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray,
             lam: float) -> tuple[np.ndarray, float]:
     """Levenberg-Marquardt step of a least-squares problem with JᵀJ = ``A`` and Jᵀr = ``g`` in the box [lo, hi].
 
     The damping ``lam`` multiplies the diagonal of A; a parameter at a bound whose gradient points out of the box
     is held there and the reduced system solved for the others; the step is then cut to the box. Returns the step
-    and the decrease of r·r the linear model predicts for it (≤ 0: the cut step cannot gain).
+    and the decrease of r·r the linear model predicts for it (≤ 0: the cut step cannot gain). Compiled
+    (:func:`_lm_kernel`): a re-fit takes a few such steps per solve, and at two or three parameters numpy's
+    per-call overhead cost as much as a tenth of the search; a singular damped system is solved by least squares.
     """
-    held = ((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0))
-    free = ~held
+    A, g = np.ascontiguousarray(A, dtype=float), np.ascontiguousarray(g, dtype=float)
+    x, lo, hi = (np.ascontiguousarray(v, dtype=float) for v in (x, lo, hi))
+    dx, pred, solved = _lm_kernel(A, g, x, lo, hi, float(lam))
+    if solved:
+        return dx, float(pred)
+    free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
     dx = np.zeros_like(x)
     if free.any():
         Af = A[np.ix_(free, free)]
         Af = Af + lam * np.diag(np.diag(Af))
-        try:
-            dx[free] = -np.linalg.solve(Af, g[free])
-        except np.linalg.LinAlgError:
-            dx[free] = -np.linalg.lstsq(Af, g[free], rcond=None)[0]
+        dx[free] = -np.linalg.lstsq(Af, g[free], rcond=None)[0]
     dx = np.clip(x + dx, lo, hi) - x
     return dx, -float(2.0 * g @ dx + dx @ A @ dx)
-
-
-def _lm_step(J, r, x, lo, hi, lam):
-    return lm_step(J.T @ J, J.T @ r, x, lo, hi, lam)
 
 
 def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None,
@@ -122,7 +173,8 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
     lam = 0.0
     max_solves = MAX_SOLVES_BASE + MAX_SOLVES_PER_PARAMETER * x.size
     while n < max_solves:
-        dx0, pred0 = _lm_step(J, r, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
+        A, g = J.T @ J, J.T @ r  # the step's normal equations, for every damping tried at this iterate
+        dx0, pred0 = lm_step(A, g, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
         if float(np.linalg.norm(dx0)) < xtol or 0.0 <= pred0 <= ftol * s:
             if moved == 0.0:  # predicted by a Jacobian differenced here
                 return InnerFit(x, s, r, J, n, True)
@@ -131,10 +183,10 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
             if J is None:
                 return InnerFit(x, s, r, None, n, False)
             continue
-        dx, pred = (dx0, pred0) if lam == 0.0 else _lm_step(J, r, x, lo, hi, lam)
+        dx, pred = (dx0, pred0) if lam == 0.0 else lm_step(A, g, x, lo, hi, lam)
         while pred <= 0.0 and lam < LAM_MAX:  # a step cut by the bounds that the model says cannot gain
             lam = max(4.0 * lam, 1e-3)
-            dx, pred = _lm_step(J, r, x, lo, hi, lam)
+            dx, pred = lm_step(A, g, x, lo, hi, lam)
         if pred <= 0.0:
             return InnerFit(x, s, r, J, n, moved == 0.0)
         r_new = resid(x + dx)
