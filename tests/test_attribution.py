@@ -216,6 +216,7 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
         label = cands[-1].label
         if grid_only:  # the screen on the two-state model: the valve's grid point lies at 6 Hz
             return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 6.0}}, effect=label)
+        assert k.get("dtol") == loop.LM_DTOL_SEARCH  # an option is refined to the search's stop, not the reported one
         if max_iter == loop.LM_ITER - loop.GLOBAL_LM_ITER:  # the best start continued: 10 better
             continued.append((label, start))
             return SimpleNamespace(labels=("two_state", label), delta_bic=start["two_state"]["score"] - 10.0,

@@ -259,6 +259,39 @@ def test_profile_levenberg_marquardt_finds_the_joint_least_squares_optimum():
     assert eng.n_evaluate <= 75
 
 
+def test_a_search_stopped_at_the_loose_tolerance_is_refined_to_the_tight_one_from_its_optimum():
+    """The loop ranks options by searches that stop at LM_DTOL_SEARCH and refines the selected one to LM_DTOL from
+    where its search stopped (fit_joint with every start given and no grid). On the separable problem from a start
+    off the optimum: the loose refinement stops an evaluation sooner than the tight one (its last iteration gains
+    less than LM_DTOL_SEARCH, more than LM_DTOL) and ends within LM_DTOL_SEARCH of the joint optimum in N_eff log S;
+    the tight refinement from where it stopped reaches the tight one's objective to LM_DTOL and its parameters to
+    0.1 % of their log ranges."""
+    from bayesdamper.diagnosis import candidates as C
+    from bayesdamper.diagnosis.engine import LM_DTOL, LM_DTOL_SEARCH
+
+    spec = C.CandidateSpec("valve_dynamics", overrides={
+        "time_constant_s": C.SearchParam("time_constant_s", 0.05, 5.0, True),
+        "opening_pressure_Pa": C.SearchParam("opening_pressure_Pa", 1e2, 1e5, True)})
+
+    def search(start, dtol):
+        eng = _SeparableEngine()
+        n = len(eng.data)
+        fit = C.fit_joint(eng, [spec], {spec.label: start}, {}, np.full(n, 1.0), np.full(n, 100.0), lambda e: None,
+                          lambda e: e, new=(spec.label,), dtol=dtol, intervals_to=-math.inf)
+        return fit, 600.0 * math.log(float(np.sum(fit.sse))), eng.n_evaluate
+
+    off = {"time_constant_s": 0.2, "opening_pressure_Pa": 1e3}
+    tight, d_tight, n_tight = search(off, LM_DTOL)
+    loose, d_loose, n_loose = search(off, LM_DTOL_SEARCH)
+    assert n_loose < n_tight
+    assert 0.0 < d_loose - d_tight <= LM_DTOL_SEARCH
+    refined, d_refined, _ = search(loose.effects["valve_dynamics"], LM_DTOL)
+    assert d_refined == pytest.approx(d_tight, abs=LM_DTOL)
+    for name, span in (("time_constant_s", math.log(100.0)), ("opening_pressure_Pa", math.log(1e3))):
+        assert math.log(refined.effects["valve_dynamics"][name]) == pytest.approx(
+            math.log(tight.effects["valve_dynamics"][name]), abs=1e-3 * span)
+
+
 def test_profile_information_is_the_schur_complement_of_the_joint_information(monkeypatch):
     """At the joint least-squares optimum of the separable problem, the profile log-likelihood's Gauss-Newton
     information (every transient re-fitted, its own directions projected out) inverts to the shared parameters' block

@@ -44,7 +44,7 @@ import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
 from bayesdamper.core.errors import BayesDamperError
-from bayesdamper.diagnosis.engine import INFEASIBLE, LM_ITER, ProfileEngine, _profile_lm, profile_information
+from bayesdamper.diagnosis.engine import INFEASIBLE, LM_DTOL, LM_ITER, ProfileEngine, _profile_lm, profile_information
 from bayesdamper.diagnosis.global_stage import (  # noqa: F401 - re-exported
     GLOBAL_LM_ITER,
     GLOBAL_REFINE,
@@ -141,7 +141,7 @@ def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict,
 def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fixed: dict,
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
               idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
-              grid_only: bool = False, intervals_to: float = math.inf) -> CandidateFit:
+              grid_only: bool = False, intervals_to: float = math.inf, dtol: float = LM_DTOL) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -178,6 +178,10 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         Intervals only for a fit whose ΔBIC_eff is at most this (the loop's search: -inf, none; it computes the
         selected option's intervals at its optimum with ``max_iter`` 0, sparing the information's re-fit and
         solves for every other option).
+    dtol : float
+        The refinement's stop (:func:`_profile_lm`): :data:`~bayesdamper.diagnosis.engine.LM_DTOL` for values that
+        are reported, the loop's looser :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH` for options it only
+        ranks.
     """
     engine.restart()  # every search starts from the current model's Jacobians, whatever ran before it
     groups = [(spec, search_params(spec)) for spec in specs]
@@ -372,12 +376,12 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                 if i and objective(z_s) >= 0.0:  # a further start no better than the current model: not refined
                     continue
                 z_r, done_r = _profile_lm(engine, z_s, lo, hi, sel, objective, detail, effects_at, flow_for, pack,
-                                          first, n_total)
+                                          first, n_total, dtol)
                 runs.append((objective(z_r), z_r, done_r))
             _, z_hat, done = min(runs, key=lambda r: r[0])
             if not done and budget > first:
                 z_hat, done = _profile_lm(engine, z_hat, lo, hi, sel, objective, detail, effects_at, flow_for, pack,
-                                          budget - first, n_total)
+                                          budget - first, n_total, dtol)
             if not done and grid_dims and max_iter is None and objective(z_hat) + n_new * math.log(n_total) < 0.0:
                 # a search from the grid whose refinement did not converge, where the candidate improves on the
                 # current model by ΔBIC_eff itself: Nelder-Mead from where it stopped, with the grid axes'

@@ -325,8 +325,17 @@ class ProfileEngine:
 LM_ITER = 12
 #: Forward-difference step of the shared parameters, as a fraction of each one's search range.
 PSI_STEP = 1e-3
-#: The refinement stops when an iteration lowers the objective (ΔBIC_eff units) by less than this.
+#: The refinement stops when an iteration lowers the objective (ΔBIC_eff units) by less than this: the tolerance of
+#: a fit whose values are reported (the selected option, its intervals, the model comparison).
 LM_DTOL = 0.05
+#: The looser stop of the select-and-refit loop's searches, whose optima only rank the options and decide the rule
+#: (:mod:`bayesdamper.diagnosis.loop`); the option selected is then refined to :data:`LM_DTOL` before its values and
+#: intervals are taken. A search that stops when its next iteration would gain less than 0.5 leaves ΔBIC_eff within
+#: about that of its optimum, so a difference of two options (a pair over its member, an option over another) within
+#: 1: a tenth of the selection threshold |ΔBIC_eff| = 10, and a negligible share of the leave-velocities-out gains'
+#: standard errors. A parameter stops within sqrt(0.5 / 2.706) = 0.43 of its 90 % interval's half-width of its
+#: optimum, which is why the values reported come from the tighter refinement.
+LM_DTOL_SEARCH = 0.5
 #: First trust radius of the refinement's steps, in units of each parameter's search range.
 LM_RADIUS = 0.25
 #: Objective evaluations an iteration may spend on rejected steps before the refinement stops.
@@ -390,7 +399,7 @@ def profile_information(engine, z, lo, hi, rows, effects_at, flow_for, pack, d_s
 
 
 def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_for, pack, max_iter: int,
-                d_scale: float):
+                d_scale: float, dtol: float = LM_DTOL):
     """Local refinement of the profile objective by Levenberg-Marquardt with variable projection.
 
     The profile objective is S(z) = Σ_k ‖r_k(z, x̂_k(z))‖² with x̂_k each transient's least-squares (log α_V,
@@ -402,10 +411,10 @@ def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_fo
     objective per trial step: the Gauss-Newton step within a trust radius, backtracked along its direction until
     the objective falls. It converges in a few iterations where the derivative-free Nelder-Mead needed tens of
     evaluations of S (each a re-fit of every transient). Stops after ``max_iter`` iterations, when an iteration
-    gains less than :data:`LM_DTOL`, or when :data:`LM_REJECTS` trial steps in a row fail. Returns the best z
-    and whether the refinement converged (the model predicts, or a full Gauss-Newton step gains, less than
-    :data:`LM_DTOL`), not merely ran out of iterations or of steps the objective accepted (its model then misses
-    the objective: bounds reached by the per-transient fits, a rough profile).
+    gains less than ``dtol`` (:data:`LM_DTOL`, or the loop's :data:`LM_DTOL_SEARCH`), or when :data:`LM_REJECTS`
+    trial steps in a row fail. Returns the best z and whether the refinement converged (the model predicts, or a
+    full Gauss-Newton step gains, less than ``dtol``), not merely ran out of iterations or of steps the objective
+    accepted (its model then misses the objective: bounds reached by the per-transient fits, a rough profile).
     """
     z = np.clip(np.asarray(z0, dtype=float), lo, hi)
     d = objective(z)
@@ -449,8 +458,8 @@ def _profile_lm(engine, z0, lo, hi, rows, objective, detail, effects_at, flow_fo
         if key not in detail:
             return z, False
         xs, resid = detail[key]
-        if pred * scale < LM_DTOL or (gain < LM_DTOL and t == 1.0):  # the model, or a full step, sees no more
+        if pred * scale < dtol or (gain < dtol and t == 1.0):  # the model, or a full step, sees no more
             return z, True
-        if gain < LM_DTOL:  # a step cut back to a small gain: the model misses the objective here
+        if gain < dtol:  # a step cut back to a small gain: the model misses the objective here
             return z, False
     return z, False

@@ -32,7 +32,8 @@ THRESHOLD_WORDS = ("cracking", "threshold", "opening")
 GLOBAL_REFINE = 3
 #: Levenberg-Marquardt iterations of each of several starts; the best continues to the search's budget
 #: (:data:`~bayesdamper.diagnosis.engine.LM_ITER`). Most refinements converge within it (an iteration each gains
-#: less than LM_DTOL); one that does not is far from its optimum, and is finished only if it is the best.
+#: less than its stop, LM_DTOL or LM_DTOL_SEARCH); one that does not is far from its optimum, and is finished only
+#: if it is the best.
 GLOBAL_LM_ITER = 4
 #: Two starts are distinct when they differ by at least this fraction of the search range (transformed: log for
 #: a log parameter) in some narrow-basin parameter; values of one axis closer than this are merged.

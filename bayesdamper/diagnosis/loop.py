@@ -16,7 +16,10 @@ candidates that best explain what it leaves (:func:`two_state_pairs`); every opt
 selected jointly
 with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
 jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
-Otherwise the answer is "none". The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every
+Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
+(:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected is refined to the reported one
+(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken. The search repeats until
+nothing passes (at most ``MAX_ROUNDS``); then every
 selected effect must still meet the criterion against the model without it (:func:`backward_check`: a later
 effect may explain what an earlier one approximated).
 """
@@ -39,6 +42,7 @@ from bayesdamper.diagnosis.candidates import (
     pooled_j,
     search_params,
 )
+from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
 from bayesdamper.diagnosis.global_stage import search_step
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
@@ -165,7 +169,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             if label in earlier:
                 spec = dataclasses.replace(spec, points=(earlier[label],))
             fits.append(fit_joint(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
-                                  effect_argument, grid_only=bool(sel_specs), intervals_to=NO_INTERVALS))
+                                  effect_argument, grid_only=bool(sel_specs), intervals_to=NO_INTERVALS,
+                                  dtol=LM_DTOL_SEARCH))
             progress.advance()
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
@@ -176,7 +181,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st = dict(start)
                 st[c.effect] = c.effects[specs[c.effect].effect]
                 fits[fits.index(c)] = fit_joint(engine, sel_specs + [specs[c.effect]], st, {}, current["sse"], n_eff,
-                                                flow_for, effect_argument, new=(c.effect,), intervals_to=NO_INTERVALS)
+                                                flow_for, effect_argument, new=(c.effect,), intervals_to=NO_INTERVALS,
+                                                dtol=LM_DTOL_SEARCH)
                 held.discard(c.effect)
         singles = sorted(fits, key=lambda c: c.delta_bic)
         seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
@@ -191,7 +197,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st[b.effect] = b.effects[specs[b.effect].effect]
                 fits.append(fit_joint(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {}, current["sse"],
                                       n_eff, flow_for, effect_argument, new=(a.effect, b.effect),
-                                      intervals_to=NO_INTERVALS))
+                                      intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH))
         if not sel_specs:
             search_step("two-state pairs")
             fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
@@ -248,15 +254,20 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if best is None:
             break
         fit = next(c for c in fits if c.effect == best["effect"])
-        # the selection's intervals at its optimum (the search itself reports optima only): with several parameters
-        # each one's uncertainty with the others free, with one its own profile's information
+        # the selection refined to the reported tolerance (LM_DTOL: the search stopped at LM_DTOL_SEARCH) and its
+        # intervals at that optimum: with several parameters each one's uncertainty with the others free, with one
+        # its own profile's information (one parameter: the search's bounded scalar optimum stands)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         st = {sp.label: fit.effects[sp.effect] for sp in cand}
         several = sum(len(search_params(sp)) for sp in cand) > 1
         progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
         search_step("the selection's intervals and re-fit")
-        best["params"] = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument,
-                                   new=fit.labels, max_iter=0, marginal=several).params
+        tight = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument, new=fit.labels,
+                          max_iter=None if several else 0, marginal=several)
+        if tight.delta_bic <= fit.delta_bic:  # the refinement from the search's optimum can only improve on it
+            fit = tight
+            best.update(score=tight.delta_bic, J_pooled=tight.j_pooled, J_reduction=1.0 - tight.j_pooled / j_cur)
+        best["params"] = tight.params
         best["intervals"] = ("marginal: inverse of the profile likelihood's Gauss-Newton information" if several
                              else "the profile likelihood's Gauss-Newton information")
         for lab in fit.labels:
@@ -335,13 +346,13 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
                            {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
                            {}, current_sse, n_eff, flow_for, effect_argument, new=pair, max_iter=GLOBAL_LM_ITER,
-                           intervals_to=NO_INTERVALS)
+                           intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH)
                  for v_ts, v in starts]
         lead = min(tried, key=lambda f: f.delta_bic)
         tried.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
                                {pair[0]: lead.effects[TWO_STATE], pair[1]: lead.effects[eff]}, {}, current_sse,
                                n_eff, flow_for, effect_argument, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER,
-                               intervals_to=NO_INTERVALS))
+                               intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH))
         earlier = have.get(frozenset(pair))
         best = min(tried + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
         if earlier is None:
