@@ -330,11 +330,11 @@ PSI_STEP = 1e-3
 LM_DTOL = 0.05
 #: The looser stop of the select-and-refit loop's searches, whose optima only rank the options and decide the rule
 #: (:mod:`bayesdamper.diagnosis.loop`); the option selected is then refined to :data:`LM_DTOL` before its values and
-#: intervals are taken. A search that stops when its next iteration would gain less than 0.5 leaves ΔBIC_eff within
-#: about that of its optimum, so a difference of two options (a pair over its member, an option over another) within
-#: 1: a tenth of the selection threshold |ΔBIC_eff| = 10, and a negligible share of the leave-velocities-out gains'
-#: standard errors. A parameter stops within sqrt(0.5 / 2.706) = 0.43 of its 90 % interval's half-width of its
-#: optimum, which is why the values reported come from the tighter refinement.
+#: intervals are taken, and the leave-velocities-out folds keep LM_DTOL (:mod:`bayesdamper.diagnosis.attribution`).
+#: A search that stops when its next iteration would gain less than 0.5 leaves ΔBIC_eff within about that of its
+#: optimum, so a difference of two options (a pair over its member, an option over another) within 1: a tenth of the
+#: selection threshold |ΔBIC_eff| = 10. A parameter stops within sqrt(0.5 / 2.706) = 0.43 of its 90 % interval's
+#: half-width of its optimum, which is why the values reported come from the tighter refinement.
 LM_DTOL_SEARCH = 0.5
 #: First trust radius of the refinement's steps, in units of each parameter's search range.
 LM_RADIUS = 0.25

@@ -18,7 +18,8 @@ with the new ones (in a later round the candidates are first screened with them 
 jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
 Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected is refined to the reported one
-(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken. The search repeats until
+(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds
+keep the reported one. The search repeats until
 nothing passes (at most ``MAX_ROUNDS``); then every
 selected effect must still meet the criterion against the model without it (:func:`backward_check`: a later
 effect may explain what an earlier one approximated).
