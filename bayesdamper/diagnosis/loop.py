@@ -88,6 +88,14 @@ LOVO_MIN_FOLDS_FOR_SE = 4
 LOVO_SIGN_TEST_FOLDS = 5
 
 
+def search_option(engine, specs, start, fixed, current_sse, n_eff, flow_for, **kw):
+    """:func:`~bayesdamper.diagnosis.candidates.fit_joint` of an option of the loop: its optimum only ranks it
+    (no intervals, :data:`NO_INTERVALS`; the search's stop :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`).
+    The option selected is refined and given its intervals afterwards (:func:`select_effects`)."""
+    return fit_joint(engine, specs, start, fixed, current_sse, n_eff, flow_for, effect_argument,
+                     intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH, **kw)
+
+
 def lovo_passes(sc) -> bool:
     """The out-of-sample part of the rule, over the folds that are not outliers
     (:func:`bayesdamper.diagnosis.attribution.outlying_folds`): every held-out fold better, and with exactly
@@ -169,9 +177,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             spec = specs[label]
             if label in earlier:
                 spec = dataclasses.replace(spec, points=(earlier[label],))
-            fits.append(fit_joint(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
-                                  effect_argument, grid_only=bool(sel_specs), intervals_to=NO_INTERVALS,
-                                  dtol=LM_DTOL_SEARCH))
+            fits.append(search_option(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
+                                      grid_only=bool(sel_specs)))
             progress.advance()
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
@@ -181,9 +188,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 progress(f"diagnose: round {rnd + 1}, re-fitting {c.effect} jointly with {', '.join(selected)}")
                 st = dict(start)
                 st[c.effect] = c.effects[specs[c.effect].effect]
-                fits[fits.index(c)] = fit_joint(engine, sel_specs + [specs[c.effect]], st, {}, current["sse"], n_eff,
-                                                flow_for, effect_argument, new=(c.effect,), intervals_to=NO_INTERVALS,
-                                                dtol=LM_DTOL_SEARCH)
+                fits[fits.index(c)] = search_option(engine, sel_specs + [specs[c.effect]], st, {}, current["sse"],
+                                                    n_eff, flow_for, new=(c.effect,))
                 held.discard(c.effect)
         singles = sorted(fits, key=lambda c: c.delta_bic)
         seeds = [c for c in singles if c.delta_bic < 0][:PAIR_FROM]
@@ -196,9 +202,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 st = dict(start)
                 st[a.effect] = a.effects[specs[a.effect].effect]
                 st[b.effect] = b.effects[specs[b.effect].effect]
-                fits.append(fit_joint(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {}, current["sse"],
-                                      n_eff, flow_for, effect_argument, new=(a.effect, b.effect),
-                                      intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH))
+                fits.append(search_option(engine, sel_specs + [specs[a.effect], specs[b.effect]], st, {},
+                                          current["sse"], n_eff, flow_for, new=(a.effect, b.effect)))
         if not sel_specs:
             search_step("two-state pairs")
             fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
@@ -344,16 +349,14 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         starts += [(refilling, c.effects[eff]), (refilling, None)]
         # each start refined for GLOBAL_LM_ITER iterations, the best then to the search's budget (as a search
         # refines its own global starts)
-        tried = [fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
-                           {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
-                           {}, current_sse, n_eff, flow_for, effect_argument, new=pair, max_iter=GLOBAL_LM_ITER,
-                           intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH)
+        tried = [search_option(engine, [specs[pair[0]], specs[pair[1]]],
+                               {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
+                               {}, current_sse, n_eff, flow_for, new=pair, max_iter=GLOBAL_LM_ITER)
                  for v_ts, v in starts]
         lead = min(tried, key=lambda f: f.delta_bic)
-        tried.append(fit_joint(engine, [specs[pair[0]], specs[pair[1]]],
-                               {pair[0]: lead.effects[TWO_STATE], pair[1]: lead.effects[eff]}, {}, current_sse,
-                               n_eff, flow_for, effect_argument, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER,
-                               intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH))
+        tried.append(search_option(engine, [specs[pair[0]], specs[pair[1]]],
+                                   {pair[0]: lead.effects[TWO_STATE], pair[1]: lead.effects[eff]}, {}, current_sse,
+                                   n_eff, flow_for, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER))
         earlier = have.get(frozenset(pair))
         best = min(tried + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
         if earlier is None:
