@@ -71,10 +71,17 @@ def _forward_jacobian(resid, x, r, hi):
     return J
 
 
+#: A pivot of the step's elimination at or below this share of the system's largest diagonal element is taken as zero
+#: (the system is singular, :func:`lm_step` takes least squares): an exactly dependent column leaves a pivot of the
+#: order of the rounding error, 1e-16 of the diagonal, whose sign and size depend on the order of the arithmetic.
+SINGULAR_PIVOT = 1e-13
+
+
 @njit(cache=True)
 def _lm_kernel(A, g, x, lo, hi, lam):  # pragma: no cover - compiled
     """:func:`lm_step` compiled: (dx, predicted decrease, solved). ``solved`` False: the damped reduced system is
-    singular (a zero pivot of Gaussian elimination with partial pivoting); the caller then takes least squares."""
+    singular (a pivot of Gaussian elimination with partial pivoting at the rounding level, :data:`SINGULAR_PIVOT`);
+    the caller then takes least squares."""
     n = x.size
     free = np.empty(n, dtype=np.int64)
     m = 0
@@ -90,12 +97,15 @@ def _lm_kernel(A, g, x, lo, hi, lam):  # pragma: no cover - compiled
             M[a, c] = A[free[a], free[c]]
         M[a, a] += lam * A[free[a], free[a]]
         b[a] = -g[free[a]]
+    scale = 0.0  # a pivot below SINGULAR_PIVOT of the largest diagonal element is rounding of a zero one
+    for a in range(m):
+        scale = max(scale, abs(M[a, a]))
     for c in range(m):  # forward elimination, partial pivoting
         p = c
         for a in range(c + 1, m):
             if abs(M[a, c]) > abs(M[p, c]):
                 p = a
-        if M[p, c] == 0.0:
+        if abs(M[p, c]) <= SINGULAR_PIVOT * scale:
             return dx, 0.0, False
         if p != c:
             for k in range(m):
