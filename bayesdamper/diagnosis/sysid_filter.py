@@ -16,7 +16,8 @@ Covariance
     transient's residual variance s_t² and colour factor c_t = (1 + ρ_t)/(1 − ρ_t) (ρ_t its lag-1
     autocorrelation): noise level and colour differ between test speeds.
 
-Imports numpy and scipy only.
+The residual, evaluated some 10^5 times by one diagnosis's leave-one-group-out table, is compiled
+(:func:`_projected_residual`, numba); everything else is numpy and scipy.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from scipy import signal
 from scipy.optimize import least_squares
 
@@ -104,6 +106,65 @@ def _shifts(x: np.ndarray) -> np.ndarray:
     return out
 
 
+@njit(cache=True)
+def _projected_residual(a, S, R0, starts, lengths, b, given):  # pragma: no cover - compiled
+    """:meth:`OutputErrorDesign.residual` compiled: the columns of ``S`` filtered by 1/A(q) over the stacked rows,
+    each transient's free responses (a basis of A(q) y = 0 on its length) projected out of them and of ``R0``, B by
+    least squares (numpy's cut-off of small singular values) unless ``given``. Returns (residual, B)."""
+    n = a.size - 1
+    rows, k = S.shape[0], n + 1
+    Z = np.empty((rows, k + 1))
+    for i in range(rows):  # 1/A(q) from rest over the concatenation (the leak into the next transient is a free
+        for c in range(k):  # response); the columns interleaved: each one's recursion is a chain of dependencies
+            acc = S[i, c]
+            for j in range(1, min(i, n) + 1):
+                acc -= a[j] * Z[i - j, c]
+            Z[i, c] = acc
+    Z[:, k] = R0
+    L_max = int(lengths.max())
+    free = np.zeros((L_max, n))
+    for j in range(n):  # homogeneous solutions: y[-1 - i] = δ_ij
+        past = np.zeros(n)
+        past[j] = 1.0
+        for i in range(L_max):
+            acc = 0.0
+            for m in range(1, n + 1):
+                acc -= a[m] * (free[i - m, j] if i >= m else past[m - i - 1])
+            free[i, j] = acc
+    last = -1
+    Q = np.empty((0, n))
+    coef = np.empty(n)
+    for t in range(starts.size):
+        L, s0 = int(lengths[t]), int(starts[t])
+        if L != last:
+            Q = np.linalg.qr(np.ascontiguousarray(free[:L]))[0]
+            last = L
+        for c in range(k + 1):  # Z[s0:s0+L, c] -= Q Qᵀ Z[s0:s0+L, c]
+            for j in range(n):
+                acc = 0.0
+                for i in range(L):
+                    acc += Q[i, j] * Z[s0 + i, c]
+                coef[j] = acc
+            for i in range(L):
+                acc = 0.0
+                for j in range(n):
+                    acc += Q[i, j] * coef[j]
+                Z[s0 + i, c] -= acc
+    X = np.ascontiguousarray(Z[:, :k])
+    y = np.ascontiguousarray(Z[:, k])
+    if not given:  # Householder QR; numpy's least squares (SVD, small singular values cut) where R is near singular
+        q, r = np.linalg.qr(X)
+        d_min, d_max = np.inf, 0.0
+        for j in range(k):
+            d_min = min(d_min, abs(r[j, j]))
+            d_max = max(d_max, abs(r[j, j]))
+        if d_min > np.finfo(np.float64).eps * max(rows, k) * d_max:
+            b = np.linalg.solve(r, q.T @ y)
+        else:
+            b = np.linalg.lstsq(X, y, rcond=np.finfo(np.float64).eps * max(rows, k))[0]
+    return y - X @ b, b
+
+
 class OutputErrorDesign:
     """Data of one input signal: shifted g and r (normalised to unit RMS), transients grouped by length.
 
@@ -123,15 +184,12 @@ class OutputErrorDesign:
         lengths = np.array([g.size for g in g_list])
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
         self.pos = np.concatenate([np.arange(L) for L in lengths])
-        # transients grouped by length L, each group as runs (first row, count) of consecutive transients:
-        # :meth:`residual` projects a run in place through a reshape (count, L, ·) of the stacked rows (a
-        # view); indexing a group's rows (a copy, then a scatter back) took ~30 % of its time on rig-A
-        self.blocks = []
-        for L in np.unique(lengths):
-            first = np.flatnonzero(lengths == L)
-            breaks = np.flatnonzero(np.diff(first) > 1) + 1
-            self.blocks.append((int(L), [(int(starts[run[0]]), run.size) for run in np.split(first, breaks)]))
         self.segments = list(zip(starts, lengths, strict=True))
+        # the compiled residual's arrays: the transients in order of length (one QR per length)
+        order = np.argsort(lengths, kind="stable")
+        self._starts, self._lengths = starts[order].astype(np.int64), lengths[order].astype(np.int64)
+        self._S: dict = {}  # order -> the first order + 1 columns of S, contiguous
+        self._R0 = np.ascontiguousarray(self.R[:, 0])
 
     def arx(self, n: int) -> tuple[np.ndarray, float]:
         """ARX denominator and its equation-error sum of squares (first n samples of each transient out)."""
@@ -143,20 +201,14 @@ class OutputErrorDesign:
     def residual(self, p: np.ndarray, n: int, b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Output-error residual [normalised] with every transient's initial state projected out, and B(z)
         (least squares unless given)."""
-        a = denominator(p, n)
         # filtering the concatenation leaks state across transients: the leak is a free response of the
         # next transient, which its own initial state absorbs exactly
-        Z = np.empty((self.R.shape[0], n + 2))  # C order: the runs below are views of it
-        Z[:, :-1] = signal.lfilter([1.0], a, self.S[:, : n + 1], axis=0)
-        Z[:, -1] = self.R[:, 0]
-        free = signal.lfilter([1.0], a, np.zeros((self.blocks[-1][0], n)), axis=0, zi=np.eye(n))[0]
-        for L, runs in self.blocks:
-            Q = np.linalg.qr(free[:L])[0]
-            for s, m in runs:
-                Zs = Z[s : s + m * L].reshape(m, L, n + 2)  # projected in place
-                Zs -= Q @ (Q.T @ Zs)
-        b = np.linalg.lstsq(Z[:, :-1], Z[:, -1], rcond=None)[0] if b is None else b
-        return Z[:, -1] - Z[:, :-1] @ b, b
+        given = b is not None
+        b = np.asarray(b, dtype=float) if given else np.zeros(n + 1)
+        if n not in self._S:
+            self._S[n] = np.ascontiguousarray(self.S[:, : n + 1])
+        return _projected_residual(denominator(np.asarray(p, dtype=float), n), self._S[n], self._R0, self._starts,
+                                   self._lengths, b, given)
 
     def start(self, n: int) -> np.ndarray:
         """Section parameters of the ARX fit or of a Steiglitz–McBride iterate from it (ARX on the data
