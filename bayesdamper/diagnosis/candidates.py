@@ -141,7 +141,8 @@ def fit_candidate(engine: ProfileEngine, name: str | CandidateSpec, fixed: dict,
 def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fixed: dict,
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
               idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
-              grid_only: bool = False, intervals_to: float = math.inf, dtol: float = LM_DTOL) -> CandidateFit:
+              grid_only: bool = False, intervals_to: float = math.inf, dtol: float = LM_DTOL,
+              polish: bool | None = None) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -182,6 +183,11 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         The refinement's stop (:func:`_profile_lm`): :data:`~bayesdamper.diagnosis.engine.LM_DTOL` for values that
         are reported, the loop's looser :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH` for options it only
         ranks.
+    polish : bool, optional
+        The Nelder-Mead polish of a search from the grid whose refinement did not converge (below). None: run it
+        where it applies; False: defer it (the fit is returned with ``polish_pending`` and its caller decides,
+        :func:`bayesdamper.diagnosis.loop.polish_contenders`); True: polish from ``start`` (with ``max_iter`` 0: no
+        refinement first), the grid's axes those a search from the grid would have had.
     """
     engine.restart()  # every search starts from the current model's Jacobians, whatever ran before it
     groups = [(spec, search_params(spec)) for spec in specs]
@@ -289,6 +295,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
 
     cost: dict = {}
     clock = [time.perf_counter(), 0]
+    pending = False
 
     def stage(name, **more):
         """Close a stage of the search's cost (seconds and evaluations since the last one)."""
@@ -384,20 +391,20 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                                           budget - first, n_total, dtol)
             if not done and grid_dims and max_iter is None and objective(z_hat) + n_new * math.log(n_total) < 0.0:
                 # a search from the grid whose refinement did not converge, where the candidate improves on the
-                # current model by ΔBIC_eff itself: Nelder-Mead from where it stopped, with the grid axes'
-                # exploratory simplex (a sixth of their range), as the search was before the refinement existed.
-                # An effect that nowhere the grid and the refinement looked beats the model by the criterion's own
-                # measure (rig-A's accumulator after the first round at ΔBIC_eff +1566; a four-parameter valve on
-                # eq. (7) data, a hair below the current SSE and +27 after its penalty) is not searched further:
-                # the simplex cost such a candidate 60 re-fits of every window
-                step = np.where(np.isin(np.arange(len(flat)), grid_dims), (hi - lo) / 6.0, (hi - lo) / 40.0)
-                simplex = np.vstack([z_hat] + [z_hat + np.eye(len(flat))[j] * step[j] for j in range(len(flat))])
-                res = minimize(objective, z_hat, method="Nelder-Mead",
-                               options={"initial_simplex": simplex, "xatol": 0.01, "fatol": NM_FATOL,
-                                        "maxiter": NM_ITER})
-                if res.fun < objective(z_hat):
-                    z_hat = np.clip(res.x, lo, hi)
+                # current model by ΔBIC_eff itself: Nelder-Mead from where it stopped (_polish). An effect that
+                # nowhere the grid and the refinement looked beats the model by the criterion's own measure (rig-A's
+                # accumulator after the first round at ΔBIC_eff +1566; a four-parameter valve on eq. (7) data, a hair
+                # below the current SSE and +27 after its penalty) is not searched further: the simplex cost such a
+                # candidate 60 re-fits of every window
+                if polish is False:
+                    pending = True
+                else:
+                    z_hat = _polish(objective, z_hat, lo, hi, grid_dims)
             stage("refine", starts=len(refine_from))
+        elif polish and objective(z_hat) + n_new * math.log(n_total) < 0.0:  # a deferred polish, from ``start``
+            z_hat = _polish(objective, z_hat, lo, hi, [j for j, (spec, p) in enumerate(flat)
+                                                       if narrow_kind(spec.effect, p.name) not in GRID_HELD])
+            stage("refine", starts=1)
     d_hat = objective(z_hat)
     e_hat = effects_at(z_hat)
     n_evals = n_evaluated[0]
@@ -441,4 +448,14 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     _tally(cost)
     return CandidateFit(label, out_params, values, float(d_hat + n_new * math.log(n_total)), jp, sse, xs,
                         len(cache), e_hat, n_new, tuple(s.label for s in specs if s.label in new), scales, flags,
-                        cost)
+                        cost, pending)
+
+
+def _polish(objective, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, grid_axes: list) -> np.ndarray:
+    """Nelder-Mead from ``z`` with the grid axes' exploratory simplex (a sixth of their range, a fortieth of the
+    others'), as the search was before the refinement existed; the better of its end and ``z``."""
+    step = np.where(np.isin(np.arange(z.size), grid_axes), (hi - lo) / 6.0, (hi - lo) / 40.0)
+    simplex = np.vstack([z] + [z + np.eye(z.size)[j] * step[j] for j in range(z.size)])
+    res = minimize(objective, z, method="Nelder-Mead",
+                   options={"initial_simplex": simplex, "xatol": 0.01, "fatol": NM_FATOL, "maxiter": NM_ITER})
+    return np.clip(res.x, lo, hi) if res.fun < objective(z) else z

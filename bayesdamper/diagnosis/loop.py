@@ -96,6 +96,35 @@ def search_option(engine, specs, start, fixed, current_sse, n_eff, flow_for, **k
                      intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH, **kw)
 
 
+def polish_contenders(engine, fits: list, specs: dict, fixed: dict, current_sse, n_eff, flow_for, progress) -> None:
+    """The deferred Nelder-Mead polishes of a round's single searches (``fit_joint`` with ``polish`` False), for the
+    candidates whose score can still matter, in place in ``fits``.
+
+    A candidate's score decides the round only while it is among the :data:`PAIR_FROM` best singles (the pairs'
+    members; the options compared, those given out-of-sample evidence and the generic option's physical rivals are
+    ranked among the best by ΔBIC_eff): a single whose refinement did not converge is polished, best first, while
+    its score, an upper bound of its optimum's, lies within the largest gain any polish of the round has made of the
+    :data:`PAIR_FROM`-th best single's score (with no polish made yet: within that score). Any other keeps its
+    refinement's optimum, marked ``polish_pending`` in the report: polishing it could not, at the gains the round's
+    polishes made, move it among the singles that decide."""
+    gain = 0.0
+    while True:
+        singles = sorted((c for c in fits if len(c.labels) == 1), key=lambda c: c.delta_bic)
+        bound = singles[PAIR_FROM - 1].delta_bic + gain if len(singles) >= PAIR_FROM else math.inf
+        todo = [c for c in singles if c.polish_pending and c.delta_bic <= bound]
+        if not todo:
+            return
+        c = todo[0]
+        label = c.labels[0]
+        progress(f"diagnose: polishing {label}")
+        done = search_option(engine, [specs[label]], {label: c.effects[specs[label].effect]}, fixed, current_sse,
+                             n_eff, flow_for, new=(label,), max_iter=0, polish=True)
+        gain = max(gain, c.delta_bic - done.delta_bic)
+        fits[fits.index(c)] = (dataclasses.replace(done, n_evaluations=c.n_evaluations + done.n_evaluations,
+                                                   cost=c.cost) if done.delta_bic < c.delta_bic
+                               else dataclasses.replace(c, polish_pending=False))
+
+
 def lovo_passes(sc) -> bool:
     """The out-of-sample part of the rule, over the folds that are not outliers
     (:func:`bayesdamper.diagnosis.attribution.outlying_folds`): every held-out fold better, and with exactly
@@ -110,7 +139,8 @@ def _option_row(fit, j_cur: float) -> dict:
     return {"effect": fit.effect, "score": fit.delta_bic, "criterion": "delta_BIC_eff", "J_pooled": fit.j_pooled,
             "J_reduction": 1.0 - fit.j_pooled / j_cur, "params": fit.params,
             "supported": bool(fit.delta_bic <= SELECT_DELTA_BIC and fit.j_pooled <= (1 - MIN_J_REDUCTION) * j_cur),
-            "n_profile_evaluations": fit.n_evaluations, "pair": "+" in fit.effect}
+            "n_profile_evaluations": fit.n_evaluations, "pair": "+" in fit.effect,
+            **({"polish": "deferred: not among the singles that decide"} if fit.polish_pending else {})}
 
 
 def check_pairs(rows: list[dict]) -> None:
@@ -178,8 +208,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             if label in earlier:
                 spec = dataclasses.replace(spec, points=(earlier[label],))
             fits.append(search_option(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
-                                      grid_only=bool(sel_specs)))
+                                      grid_only=bool(sel_specs), polish=False))
             progress.advance()
+        polish_contenders(engine, fits, specs, fixed, current["sse"], n_eff, flow_for, progress)
         held = set()
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
             held = {c.effect for c in fits}

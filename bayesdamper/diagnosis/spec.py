@@ -34,6 +34,7 @@ class CandidateFit:
     scales: dict = dataclasses.field(default_factory=dict)  # key of params -> {"z", "sd", "log", "sign"} (search scale)
     at_bound: list = dataclasses.field(default_factory=list)  # [{"param", "value", "bound", "side"}]: bound_flags
     cost: dict = dataclasses.field(default_factory=dict)      # stage -> {"s", "evaluations"} (module docstring)
+    polish_pending: bool = False  # its refinement did not converge and its simplex polish was deferred (fit_joint)
 
 
 @dataclass(frozen=True)
