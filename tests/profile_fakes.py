@@ -35,7 +35,7 @@ class FakeProfileEngine:
         """No outcome is re-used."""
         return contextlib.nullcontext(self)
 
-    def sensitivities(self, effs, flows, hs, idx, xs, resid):
+    def sensitivities(self, base, effs, flows, hs, idx, xs, resid):
         perturbed = [self.evaluate(e, f, idx=idx)[2] for e, f in zip(effs, flows, strict=True)]
         return [None if r is None else np.column_stack([(p[i] - r) / h for p, h in zip(perturbed, hs, strict=True)])
                 for i, r in enumerate(resid)]

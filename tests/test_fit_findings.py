@@ -339,10 +339,10 @@ class _RoughWellEngine(_WellEngine):
         self.calls = []  # (z of the point, start given, rough) of the objective's evaluations
         self._differencing = False
 
-    def sensitivities(self, effs, flows, hs, idx, xs, resid):
+    def sensitivities(self, base, effs, flows, hs, idx, xs, resid):
         self._differencing = True  # the stand-in's sensitivities evaluate too: not the objective's evaluations
         try:
-            return super().sensitivities(effs, flows, hs, idx, xs, resid)
+            return super().sensitivities(base, effs, flows, hs, idx, xs, resid)
         finally:
             self._differencing = False
 

@@ -155,9 +155,9 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
         def inner_box(self):
             return INNER_BOX
 
-        def simulate_inner(self, x, eff, flow=None):
+        def simulate_inner(self, x, eff, flow=None, record=False, replay=None):
             r = guarded(np.asarray(x) - [5.0, 12.0])
-            return (r, True) if r is not None else (np.full(400, np.nan), False)
+            return ((r, True) if r is not None else (np.full(400, np.nan), False)) + ((None,) if record else ())
 
     E._PROBLEMS[:] = [Problem()]
     x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None, False))
@@ -169,9 +169,9 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
     solves = []
 
     class Counted(Problem):
-        def simulate_inner(self, x, eff, flow=None):
+        def simulate_inner(self, x, eff, flow=None, record=False, replay=None):
             solves.append(1)
-            return super().simulate_inner(x, eff, flow)
+            return super().simulate_inner(x, eff, flow, record=record)
 
     E._PROBLEMS[:] = [Counted()]
     x_rough, sse_rough, r_rough, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None, False))
@@ -217,7 +217,7 @@ class _SeparableEngine:
             self.jac[k] = o[2]
         return np.array([float(o[1] @ o[1]) for o in out]), np.array([o[0] for o in out]), [o[1] for o in out]
 
-    def sensitivities(self, effs, flows, hs, idx, xs, resid):
+    def sensitivities(self, base, effs, flows, hs, idx, xs, resid):
         out = []
         for k, x, r in zip([int(i) for i in idx], xs, resid, strict=True):
             cols = []
@@ -369,10 +369,11 @@ def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
         def inner_box(self):
             return INNER_BOX
 
-        def simulate_inner(self, x, eff, flow=None):
+        def simulate_inner(self, x, eff, flow=None, record=False, replay=None):
             solves.append(np.array(x))
             z = np.asarray(x) - shift
-            return (resid(z), True) if z[0] < 1.5 else (np.full(400, np.nan), False)  # fails beyond x0 = 1.5
+            out = (resid(z), True) if z[0] < 1.5 else (np.full(400, np.nan), False)  # fails beyond x0 = 1.5
+            return out + ((None,) if record else ())
 
     E._PROBLEMS[:] = [Problem()]
     warm = np.array([-1.0, -1.0]) + shift
@@ -414,9 +415,9 @@ def test_a_rough_re_fit_stops_at_its_own_tolerances():
         def inner_box(self):
             return INNER_BOX
 
-        def simulate_inner(self, x, eff, flow=None):
+        def simulate_inner(self, x, eff, flow=None, record=False, replay=None):
             solves[0] += 1
-            return self.resid(np.asarray(x) - shift), True
+            return (self.resid(np.asarray(x) - shift), True) + ((None,) if record else ())
 
     for seed in (1, 2, 3, 4, 5):
         resid = _decay(seed, shift=0.4)
@@ -460,8 +461,8 @@ def test_a_model_made_current_re_fits_each_window_from_the_best_of_a_spread_of_s
         def inner_box(self):
             return INNER_BOX
 
-        def simulate_inner(self, x, eff, flow=None):
-            return resid(np.asarray(x, dtype=float)), True
+        def simulate_inner(self, x, eff, flow=None, record=False, replay=None):
+            return (resid(np.asarray(x, dtype=float)), True) + ((None,) if record else ())
 
     spread = E.spread_starts(*INNER_BOX, np.array([8.2, 12.0]))
     assert len(spread) == E.SPREAD_POINTS ** 2

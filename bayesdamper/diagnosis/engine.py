@@ -92,9 +92,16 @@ def _inner_fit(args):
     lo, hi = prob.inner_box()
     f_meas = prob.force
     big = 1e3 * (np.abs(f_meas) + 1.0)
+    steps: dict = {}  # x -> the steps of the solve there, which its forward differences replay
 
     def solve(x):
-        f, ok = prob.simulate_inner(x, eff, flow)
+        f, ok, st = prob.simulate_inner(x, eff, flow, record=True)
+        if st is not None:
+            steps[x.tobytes()] = st
+        return (f - f_meas) if ok and np.all(np.isfinite(f)) else None
+
+    def fd(x, xp):
+        f, ok = prob.simulate_inner(xp, eff, flow, replay=steps.get(x.tobytes()))
         return (f - f_meas) if ok and np.all(np.isfinite(f)) else None
 
     def resid(x):
@@ -117,7 +124,7 @@ def _inner_fit(args):
             x0, r_start = (x1, r1) if r0 is None or float(r1 @ r1) < float(r0 @ r0) else (x0, r0)
 
     def finish(x0, r_start):
-        fit = refit(solve, x0, lo, hi, jac, r0=r_start, **(ROUGH_TOLERANCES if rough else {}))
+        fit = refit(solve, x0, lo, hi, jac, r0=r_start, fd=fd, **(ROUGH_TOLERANCES if rough else {}))
         if fit.r is None:  # the effect values fail at this (α_V, p_R): infeasible, not searched further
             return x0, 1e300, None, None
         if fit.converged or rough:
@@ -169,14 +176,20 @@ def _solve_at(args):
 def _psi_columns(args):
     """Forward-difference columns ∂r/∂z_j of one window at its fitted own parameters (worker task).
 
-    ``effs``/``flows``: the effect argument and flow coefficients at z + h_j e_j for each j; a perturbed solve
-    that fails gives a zero column (the direction is then left to the damping).
+    ``base``: the effect argument and flow coefficients at z, solved once more here to record its steps, which every
+    perturbed solve replays (internal numerical differentiation: two error-controlled solves differ by their
+    tolerance's noise, which a difference over a small step magnifies); ``effs``/``flows``: the effect argument and
+    flow coefficients at z + h_j e_j for each j; a perturbed solve that fails gives a zero column (the direction is
+    then left to the damping).
     """
-    k, effs, flows, x, r0, hs = args
+    k, base, effs, flows, x, r0, hs = args
     prob = _PROBLEMS[k]
     cols = np.zeros((r0.size, len(effs)))
+    f0, ok, steps = prob.simulate_inner(x, base[0], base[1], record=True)
+    if ok and np.all(np.isfinite(f0)):
+        r0 = f0 - prob.force
     for j, (eff, flow, h) in enumerate(zip(effs, flows, hs, strict=True)):
-        f, ok = prob.simulate_inner(x, eff, flow)
+        f, ok = prob.simulate_inner(x, eff, flow, replay=steps)
         if ok and np.all(np.isfinite(f)):
             cols[:, j] = ((f - prob.force) - r0) / h
     return cols
@@ -254,12 +267,14 @@ class ProfileEngine:
         finally:
             self._memo = None
 
-    def sensitivities(self, effs: list, flows: list, hs: np.ndarray, idx, xs: np.ndarray, resid: list) -> list:
+    def sensitivities(self, base: tuple, effs: list, flows: list, hs: np.ndarray, idx, xs: np.ndarray,
+                      resid: list) -> list:
         """Per transient of ``idx``: forward-difference Jacobian of its residual with respect to the shared
-        parameters (columns: the effect arguments ``effs`` and flows ``flows`` at steps ``hs``), at its fitted
-        own parameters ``xs`` and residual ``resid`` (None: infeasible, no columns)."""
+        parameters (columns: the effect arguments ``effs`` and flows ``flows`` at steps ``hs``, against ``base``,
+        the effect argument and flows at the point itself), at its fitted own parameters ``xs`` and residual
+        ``resid`` (None: infeasible, no columns)."""
         ks = [int(i) for i in idx]
-        tasks = [(k, effs, flows, x, r, hs) for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
+        tasks = [(k, base, effs, flows, x, r, hs) for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
         cols = iter(self._map(_psi_columns, tasks))
         return [next(cols) if r is not None else None for r in resid]
 
@@ -351,6 +366,8 @@ def projected_normal_equations(engine, z, lo, hi, rows, xs, resid, effects_at, f
     have no flow coefficients (infeasible) gets a zero column. Returns ``(A, g, ok)``, ``ok`` the directions solved."""
     h = PSI_STEP * (hi - lo)
     hs = np.where(z + h > hi, -h, h)
+    e0 = effects_at(z)
+    base = (pack(e0), flow_for(e0))
     effs, flows, ok = [], [], np.ones(z.size, dtype=bool)
     for j in range(z.size):
         zj = z.copy()
@@ -362,7 +379,7 @@ def projected_normal_equations(engine, z, lo, hi, rows, xs, resid, effects_at, f
             flows.append(None)
             ok[j] = False
         effs.append(pack(e))
-    cols = engine.sensitivities(effs, flows, hs, rows, xs, resid)
+    cols = engine.sensitivities(base, effs, flows, hs, rows, xs, resid)
     A = np.zeros((z.size, z.size))
     g = np.zeros(z.size)
     for k, c, r, x in zip(rows, cols, resid, xs, strict=True):

@@ -55,8 +55,10 @@ class InnerFit:
     converged: bool
 
 
-def _forward_jacobian(resid, x, r, hi):
-    """Forward-difference Jacobian at x (steps away from the upper bound); None if a perturbed solve fails."""
+def _forward_jacobian(resid, x, r, hi, fd=None):
+    """Forward-difference Jacobian at x (steps away from the upper bound); None if a perturbed solve fails.
+    ``fd(x, xp)``: the residual at ``xp`` as a difference against the solve at ``x`` (its steps replayed), else
+    ``resid(xp)``."""
     J = np.empty((r.size, x.size))
     for j in range(x.size):
         h = DIFF_STEP * max(1.0, abs(x[j]))
@@ -64,7 +66,7 @@ def _forward_jacobian(resid, x, r, hi):
             h = -h
         xp = x.copy()
         xp[j] += h
-        rp = resid(xp)
+        rp = resid(xp) if fd is None else fd(x, xp)
         if rp is None:
             return None
         J[:, j] = (rp - r) / h
@@ -158,12 +160,14 @@ def lm_step(A: np.ndarray, g: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.
 
 
 def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray | None = None,
-          r0: np.ndarray | None = None, xtol: float = XTOL, ftol: float = FTOL) -> InnerFit:
+          r0: np.ndarray | None = None, xtol: float = XTOL, ftol: float = FTOL, fd=None) -> InnerFit:
     """Least-squares minimum of ``resid(x)`` (an array, or None for a failed solve) in the box [lo, hi].
 
     ``jac``: the Jacobian a previous fit ended with (None: differenced at ``x0``). ``r0``: ``resid(x0)`` where the
     caller has solved there already (``x0`` inside the box; counted as the fit's first solve). ``xtol``, ``ftol``: the
-    convergence tolerances (module docstring; looser ones for a value that only ranks). Returns the best point
+    convergence tolerances (module docstring; looser ones for a value that only ranks). ``fd(x, xp)``: the residual
+    at ``xp`` for a forward difference at ``x`` (:func:`_forward_jacobian`; default ``resid(xp)``). Returns the best
+    point
     found and ``converged`` False when the solves (:data:`MAX_SOLVES_PER_PARAMETER`) ran out or the Jacobian could
     not be differenced; an infeasible start (``resid(x0)`` None) returns ``sse`` inf and ``r`` None.
     """
@@ -174,7 +178,7 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
         return InnerFit(x, float("inf"), None, None, n, False)
     s = float(r @ r)
     if jac is None:
-        J, moved = _forward_jacobian(resid, x, r, hi), 0.0
+        J, moved = _forward_jacobian(resid, x, r, hi, fd), 0.0
         n += x.size
         if J is None:
             return InnerFit(x, s, r, None, n, False)
@@ -188,7 +192,7 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
         if float(np.linalg.norm(dx0)) < xtol or 0.0 <= pred0 <= ftol * s:
             if moved == 0.0:  # predicted by a Jacobian differenced here
                 return InnerFit(x, s, r, J, n, True)
-            J, moved, lam = _forward_jacobian(resid, x, r, hi), 0.0, 0.0
+            J, moved, lam = _forward_jacobian(resid, x, r, hi, fd), 0.0, 0.0
             n += x.size
             if J is None:
                 return InnerFit(x, s, r, None, n, False)
@@ -216,7 +220,7 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
         elif moved == 0.0 and pred <= 10.0 * ftol * s:  # an exact Jacobian's small step failed: the noise floor
             return InnerFit(x, s, r, J, n, True)
         elif moved > 0.0:  # the Jacobian may be what failed: difference it here first
-            J, moved = _forward_jacobian(resid, x, r, hi), 0.0
+            J, moved = _forward_jacobian(resid, x, r, hi, fd), 0.0
             n += x.size
             if J is None:
                 return InnerFit(x, s, r, None, n, False)

@@ -108,8 +108,13 @@ class WindowProblem:
         return self.damper.piston_area * dp, ok
 
 
-#: Kernel tolerances of :class:`EffectsProblem` (the diagnosis's candidate search).
-EFFECTS_RTOL = 1e-6
+#: Kernel tolerances of :class:`EffectsProblem` (the diagnosis's candidate search): the likelihood's. The search's
+#: forward differences replay the steps of the solve they are differenced against
+#: (:func:`~bayesdamper.physics.compose.solve_composed`), so their error is the discrete solution's, not the
+#: tolerance's noise over the difference's step: with error-controlled differences at this tolerance a window's
+#: Jacobian of a two-state model with a valve was off by up to 60 % (rig-A, against rtol 1e-8), and the search needed
+#: rtol 1e-6 (the reference inertance case of tests/test_confusion.py lost its only candidate at 1e-5).
+EFFECTS_RTOL = 1e-5
 EFFECTS_ATOL = 1.0  # [Pa]
 #: Box of a window's (log α_V, log p_R) in its least-squares re-fits: the priors' boxes.
 INNER_BOX = (np.log([2.0, 1e3]), np.log([5000.0, 1e7]))
@@ -242,10 +247,12 @@ class EffectsProblem:
             out["flow"] = np.exp(np.asarray(x[k:k + 4], dtype=float))
         return out
 
-    def simulate_inner(self, x: np.ndarray, effects: ComposedEffects,
-                       flow: FlowCoefficients | None = None) -> tuple[np.ndarray, bool]:
+    def simulate_inner(self, x: np.ndarray, effects: ComposedEffects, flow: FlowCoefficients | None = None, *,
+                       record: bool = False, replay: np.ndarray | None = None) -> tuple:
         """Computed force [N] at the window's own parameters ``x`` with ``effects`` (``flow`` replaces the fixed
-        flow coefficients of a window without its own)."""
+        flow coefficients of a window without its own), and whether the solve succeeded. ``record``: also the
+        solve's steps (:func:`~bayesdamper.physics.compose.solve_composed`); ``replay``: a solve's steps to take
+        (a finite difference against that solve)."""
         v = self.unpack_inner(x)
         if self.free_flow:
             flow4 = v["flow"]
@@ -254,11 +261,11 @@ class EffectsProblem:
         drive, v_prev = self._input(effects)
         start = v["start_force_N"] if self.free_start else self.step_force
         if not (math.isfinite(start) and np.all(np.isfinite(flow4))):
-            return np.full(self.time.shape, np.nan), False
-        force, status = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
-                                       np.ascontiguousarray(flow4, dtype=float), v["alpha_V"], v["p_R_Pa"],
-                                       self.rtol, self.atol, from_force=True, max_steps=self.max_steps)
-        return force, status == 0
+            return (np.full(self.time.shape, np.nan), False) + ((None,) if record else ())
+        out = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
+                             np.ascontiguousarray(flow4, dtype=float), v["alpha_V"], v["p_R_Pa"], self.rtol, self.atol,
+                             from_force=True, max_steps=self.max_steps, record=record, replay=replay)
+        return (out[0], out[1] == 0) + tuple(out[2:])
 
     def _input(self, comp: ComposedEffects) -> tuple[PiecewisePolynomial, float]:
         key = (comp.names, comp.values.tobytes())

@@ -361,7 +361,8 @@ def kernel():
 
 def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: PiecewisePolynomial, t0: float, dp0: float,
                    v_prev: float, damper, flow4: np.ndarray, alpha_v: float, p_r: float, rtol: float, atol: float, *,
-                   from_force: bool = False, max_steps: int | None = None) -> tuple[np.ndarray, int]:
+                   from_force: bool = False, max_steps: int | None = None, record: bool = False,
+                   replay: np.ndarray | None = None) -> tuple:
     """Force [N] at ``t_out`` and the status code of the composed kernel of ``composed``.
 
     ``drive`` is the measured displacement, already through :meth:`ComposedEffects.transform_input` and covering
@@ -370,6 +371,11 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
     ``flow4`` the eq. (8) coefficients; ``from_force``: ``dp0`` is the measured step force [N]
     (Δp0 solved from it, see :func:`~bayesdamper.physics.composed_template.solve_composed`); ``max_steps``:
     accepted steps after which the solve fails (None: ``composed_template.MAX_STEPS``).
+
+    ``record``: also return the end times of the accepted steps (``(force, status, steps)``; ``steps`` None where
+    eq. (7)'s own kernel solved or the record overflowed). ``replay``: such steps, taken as they are instead of
+    by error control (internal numerical differentiation: the force at perturbed parameters on the steps of the
+    solve it is differenced against); where they do not fit this solve it is solved again with error control.
     """
     mod = kernel()
     comp = composed.compliance()
@@ -380,14 +386,29 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
     t_out = np.ascontiguousarray(t_out, dtype=float)
     if composed.force_only and t_out.size and t0 <= t_out[0] and t_out[-1] <= drive.end:
         w = drive.window(t0, float(max(t_out[-1], t0 + 1e-9)))  # eq. (7) starts at the input's first break
-        return mod.solve_force_only(t_out, w.breaks, w.coefs, w.restart, float(dp0), float(v_prev), base,
-                                    np.ascontiguousarray(composed.values), float(rtol), float(atol), bool(from_force),
-                                    composed.layout)
-    return mod.solve_composed(np.ascontiguousarray(t_out, dtype=float), drive.breaks, drive.coefs, drive.restart,
-                              float(t0), float(dp0), float(v_prev),
-                              base, np.ascontiguousarray(composed.values), float(rtol), float(atol),
-                              bool(from_force), composed.layout,
-                              int(composed_template.MAX_STEPS if max_steps is None else max_steps))
+        force, status = mod.solve_force_only(t_out, w.breaks, w.coefs, w.restart, float(dp0), float(v_prev), base,
+                                             np.ascontiguousarray(composed.values), float(rtol), float(atol),
+                                             bool(from_force), composed.layout)
+        return (force, status, None) if record else (force, status)
+    cap = int(composed_template.MAX_STEPS if max_steps is None else max_steps)
+    rec = np.empty(min(cap, RECORD_PER_SAMPLE * t_out.size + RECORD_BASE) if record else 0)
+    args = (t_out, drive.breaks, drive.coefs, drive.restart, float(t0), float(dp0), float(v_prev), base,
+            np.ascontiguousarray(composed.values), float(rtol), float(atol), bool(from_force), composed.layout, cap,
+            rec)
+    if replay is not None and replay.size:
+        force, status, n = mod.solve_composed(*args, np.ascontiguousarray(replay, dtype=float))
+        if status != composed_template.STATUS_REPLAY:
+            return (force, status, replay[:n] if n == replay.size else None) if record else (force, status)
+    force, status, n = mod.solve_composed(*args, _NO_STEPS)
+    if not record:
+        return force, status
+    return force, status, (rec[:n].copy() if n < rec.size else None)
+
+
+#: Room for the recorded steps of a solve (``record``): this many per output sample and this many more; a solve that
+#: takes more (a record that overflows) returns none and is not replayed.
+RECORD_PER_SAMPLE, RECORD_BASE = 4, 1000
+_NO_STEPS = np.empty(0)
 
 
 def warm_up() -> None:

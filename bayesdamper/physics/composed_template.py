@@ -27,6 +27,7 @@ from bayesdamper.physics.rodas import (
     STATUS_MAX_STEPS,
     STATUS_NONFINITE,
     STATUS_OK,
+    STATUS_REPLAY,
     STATUS_STEP_UNDERFLOW,
     STATUS_VOLUME,
     dense_coefficients,
@@ -43,6 +44,10 @@ from bayesdamper.physics.single_state import solve_eq7 as _solve_eq7
 
 #: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
+#: A replayed step whose error estimate exceeds this many times the tolerance ends the replay (the solve is done
+#: again with error control): the perturbed solution has left the one whose steps are replayed (a valve that
+#: chatters, opens or closes at another step), and its difference against it would be the replay's error.
+REPLAY_ERR_MAX = 10.0
 # layout of the ``base`` vector
 B_AREA, B_V01, B_V02, B_B0, B_ALPHA, B_PR, B_FL0, B_FL1, B_FL2, B_FL3, B_COMP = range(11)
 N_BASE = 11
@@ -156,7 +161,8 @@ def solve_force_only(t_out, brk, coef, restart, dp0, v_prev, base, prm, rtol, at
 
 
 @njit(cache=True, error_model="numpy")
-def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay, max_steps):
+def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, atol, from_force, lay, max_steps,
+                   rec, rep):
     """Force of the composed model at the sample times (module docstring).
 
     Parameters
@@ -183,22 +189,35 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         (:func:`bayesdamper.physics.compose.layout`).
     max_steps : int
         Accepted steps after which the solve fails with ``STATUS_MAX_STEPS``.
+    rec : ndarray
+        Where the end time of every accepted step is written, in order, while it has room (size 0: nothing is
+        recorded); their number is returned.
+    rep : ndarray
+        Step end times to replay (size 0: the steps are chosen by the error control): the solve takes exactly
+        these steps, no error estimate, no rejection (internal numerical differentiation: a solve at perturbed
+        parameters on the steps of the solve it is differenced against differs from it smoothly, where two
+        error-controlled solves differ by their tolerance's noise). ``STATUS_REPLAY`` when they do not fit this
+        solve's restart intervals or a step fails.
 
     Returns
     -------
-    (force [N] at t_out, status) with the status codes of :mod:`bayesdamper.physics.rodas`.
+    (force [N] at t_out, status, steps recorded) with the status codes of :mod:`bayesdamper.physics.rodas`.
     """
     n_t = t_out.shape[0]
     out = np.full(n_t, np.nan)
     m = brk.shape[0] - 1
+    n_rec = 0
+    replaying = rep.shape[0] > 0
+    i_rep = 0
+    t_next = 0.0
     if n_t == 0:
-        return out, STATUS_OK
+        return out, STATUS_OK, n_rec
     if (m < 1 or coef.shape[0] != m or restart.shape[0] != m + 1
             or not (math.isfinite(t0) and brk[0] <= t0 <= t_out[0] and t_out[n_t - 1] <= brk[m])):
-        return out, STATUS_BAD_INPUT
+        return out, STATUS_BAD_INPUT, n_rec
     for j in range(prm.shape[0]):
         if not math.isfinite(prm[j]) and not prm[j] == math.inf:
-            return out, STATUS_BAD_INPUT
+            return out, STATUS_BAD_INPUT, n_rec
     ns = _n_states(lay)
     force_needs_signals = _force_needs_signals(lay, prm)
     sig = np.full(N_SIGNALS, np.nan)
@@ -224,7 +243,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         tk = min(max(brk[k], t0), t_end)
         yk, _, _, _ = _drive(tk, brk, coef, 0, m, min(k, m - 1))
         if base[B_V01] - base[B_AREA] * yk <= 0.0 or base[B_V02] + base[B_AREA] * yk <= 0.0:
-            return out, STATUS_VOLUME
+            return out, STATUS_VOLUME, n_rec
         if brk[k] >= t_end:
             break
     # the restart interval [brk[a], brk[b]] holding t0
@@ -245,10 +264,10 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         for _ in range(6):  # the steady state before t0: velocity v_prev, no acceleration
             if not (_init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)
                     and _rhs_at(t0, x, f0, sig, prm, base, ya0, v_prev, 0.0, lay)):
-                return out, STATUS_NONFINITE
+                return out, STATUS_NONFINITE, n_rec
             dp0 -= (_force(sig, x, prm, base, lay) - f_target) / base[B_AREA]
     if not (math.isfinite(dp0) and _init(t0, ya0, v_prev, dp0, sig, x, prm, base, lay)):
-        return out, STATUS_NONFINITE
+        return out, STATUS_NONFINITE, n_rec
     i_out = 0
     n_steps = 0
     while a < m:
@@ -260,7 +279,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         tk1 = brk[b]
         while i_out < n_t and t_out[i_out] <= ts:
             if not _rhs(ts, x, f0, sig, prm, base, brk, coef, seg, lay):
-                return out, STATUS_NONFINITE
+                return out, STATUS_NONFINITE, n_rec
             out[i_out] = _force(sig, x, prm, base, lay)
             i_out += 1
         if i_out >= n_t:
@@ -269,7 +288,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         t = ts
         # Hairer-Wanner initial step
         if not _rhs(t, x, f0, sig, prm, base, brk, coef, seg, lay):
-            return out, STATUS_NONFINITE
+            return out, STATUS_NONFINITE, n_rec
         d0 = 0.0
         d1 = 0.0
         for i in range(ns):
@@ -295,40 +314,50 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         err_acc = 1.0
         reject = False
         while t < tb:
-            if n_steps >= max_steps:
-                return out, STATUS_MAX_STEPS
-            last = False
-            if t + 1.0001 * h >= tb:
-                h = tb - t
-                last = True
+            if replaying:  # the recorded step ending at rep[i_rep]; it must end inside this interval
+                if i_rep >= rep.shape[0] or not (t < rep[i_rep] <= tb):
+                    return out, STATUS_REPLAY, n_rec
+                t_next = rep[i_rep]
+                i_rep += 1
+                last = t_next == tb
+                h = t_next - t
+            else:
+                if n_steps >= max_steps:
+                    return out, STATUS_MAX_STEPS, n_rec
+                last = False
+                if t + 1.0001 * h >= tb:
+                    h = tb - t
+                    last = True
             # f, forward-difference Jacobian and time derivative at (t, x)
             if not _rhs(t, x, f0, sig, prm, base, brk, coef, seg, lay):
-                return out, STATUS_NONFINITE
+                return out, STATUS_NONFINITE, n_rec
             for j in range(ns):
                 dj = 1.49e-8 * max(abs(x[j]), sc_a[j] * 1e3)
                 for i in range(ns):
                     xp[i] = x[i]
                 xp[j] = x[j] + dj
                 if not _rhs(t, xp, f1, sig, prm, base, brk, coef, seg, lay):
-                    return out, STATUS_NONFINITE
+                    return out, STATUS_NONFINITE, n_rec
                 for i in range(ns):
                     jac[i, j] = (f1[i] - f0[i]) / dj
             dt = 1.49e-8 * max(abs(t), 1.0)
             if not _rhs(t + dt, x, f1, sig, prm, base, brk, coef, seg, lay):
-                return out, STATUS_NONFINITE
+                return out, STATUS_NONFINITE, n_rec
             for i in range(ns):
                 ft[i] = (f1[i] - f0[i]) / dt
                 if not (math.isfinite(f0[i]) and math.isfinite(ft[i])):
-                    return out, STATUS_NONFINITE
+                    return out, STATUS_NONFINITE, n_rec
             while True:  # attempts from (t, x)
                 if h <= 1e-14 * max(1.0, abs(t)):
-                    return out, STATUS_STEP_UNDERFLOW
+                    return out, STATUS_STEP_UNDERFLOW, n_rec
                 g = 1.0 / (h * _GAMMA)
                 for i in range(ns):
                     for j in range(ns):
                         mat[i, j] = -jac[i, j]
                     mat[i, i] += g
                 if not _lu(mat, piv):
+                    if replaying:
+                        return out, STATUS_REPLAY, n_rec
                     h *= 0.5
                     last = False
                     continue
@@ -366,13 +395,17 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                             good = False
                     good = good and math.isfinite(err)
                 if not good:
+                    if replaying:
+                        return out, STATUS_REPLAY, n_rec
                     h *= 0.2
                     last = False
                     reject = True
                     continue
+                if replaying and err > REPLAY_ERR_MAX:  # the recorded step is too long for this solution here
+                    return out, STATUS_REPLAY, n_rec
                 fac = step_factor(err)
                 h_new = h / fac
-                if err > 1.0:
+                if err > 1.0 and not replaying:
                     reject = True
                     last = False
                     h = h_new
@@ -383,7 +416,10 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                     h_new = predictive_step(h, fac, err, h_acc, err_acc)
                 h_acc = h
                 err_acc = max(0.01, err)
-                t_new = tb if last else t + h
+                t_new = tb if last else (t_next if replaying else t + h)
+                if n_rec < rec.shape[0]:
+                    rec[n_rec] = t_new
+                    n_rec += 1
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
                     if force_needs_signals:
@@ -391,7 +427,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                             cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
                             xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
                         if not _rhs(t_out[i_out], xd, f1, sig, prm, base, brk, coef, seg, lay):
-                            return out, STATUS_NONFINITE
+                            return out, STATUS_NONFINITE, n_rec
                         out[i_out] = _force(sig, xd, prm, base, lay)
                     else:  # F = A_P Δp: the dense output of Δp alone
                         cd3, cd4 = dense_coefficients(ks[0, 0], ks[1, 0], ks[2, 0], ks[3, 0], ks[4, 0])
@@ -410,5 +446,5 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
             break
     for i in range(n_t):
         if not math.isfinite(out[i]):
-            return out, STATUS_NONFINITE
-    return out, STATUS_OK
+            return out, STATUS_NONFINITE, n_rec
+    return out, STATUS_OK, n_rec

@@ -8,7 +8,8 @@ from here.
 
 Status codes of the kernels (``STATUS_MESSAGES`` maps them to text): 0 success (output finite),
 1 non-finite state, 2 step-size underflow, 3 maximum number of steps exceeded, 4 a chamber volume
-<= 0 on the excitation, 5 invalid input (times, tolerances or parameters).
+<= 0 on the excitation, 5 invalid input (times, tolerances or parameters), 6 recorded steps that do not fit a
+replaying solve (the composed kernel's internal numerical differentiation).
 """
 
 from __future__ import annotations
@@ -24,6 +25,9 @@ DEFAULT_ATOL = 1e-2
 MAX_STEPS = 200_000
 STATUS_OK, STATUS_NONFINITE, STATUS_STEP_UNDERFLOW = 0, 1, 2
 STATUS_MAX_STEPS, STATUS_VOLUME, STATUS_BAD_INPUT = 3, 4, 5
+#: The composed kernel could not replay the steps it was given (they do not fit its restart intervals, or a step
+#: failed): its caller solves again with error control.
+STATUS_REPLAY = 6
 STATUS_MESSAGES = {
     STATUS_OK: "success",
     STATUS_NONFINITE: "the pressure difference became non-finite",
@@ -31,6 +35,7 @@ STATUS_MESSAGES = {
     STATUS_MAX_STEPS: f"more than {MAX_STEPS} steps were needed",
     STATUS_VOLUME: "a chamber volume is <= 0 on the excitation",
     STATUS_BAD_INPUT: "invalid times, tolerances or parameters",
+    STATUS_REPLAY: "the recorded steps did not fit this solve",
 }
 
 

@@ -279,9 +279,8 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
                                     _gain_scale(signature, windows, base_resid, base_model, area, base_flows),
                                     {k: _rms_ratio(windows, base_resid, base_model, area, base_flows, k)
                                      for k in FLOW_DRIVERS})
-    # the search caps a solve's steps (STEPS_PER_SAMPLE) at the problems' default tolerance (rtol 1e-6: at 1e-5
-    # the reference inertance case of tests/test_confusion.py lost its only candidate); the final model is solved
-    # uncapped at the likelihood's tolerance
+    # the search caps a solve's steps (STEPS_PER_SAMPLE) at the problems' default tolerance (EFFECTS_RTOL, with the
+    # forward differences on replayed steps); the final model is solved uncapped at the likelihood's tolerance
     problems, warm, screen, screen_warm = search_problems(windows, base, ds.damper, flow0, STEPS_PER_SAMPLE)
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
