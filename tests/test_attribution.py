@@ -187,11 +187,12 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         calls.clear()
         ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state",
                              at_bound=[])
-        out = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
-                                   Progress(False))
+        out, screen = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                           Progress(False))
         screens = [c for c in calls if c[0] == "screen"]
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
+        assert sorted(screen["points"]) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
         assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"),
                                            ("two_state", "backlash")]
 
@@ -239,8 +240,8 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-600.0, effects={"poppet_valve": {"f": 1.8}},
                             effect="poppet_valve")
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
-    out = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
-                               Progress(False))
+    out, _ = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                  Progress(False))
     key = lambda r: (r[0], -1.0 if r[1] is None else r[1])  # noqa: E731
     assert sorted(pairs, key=key) == [("leakage", None), ("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", None),
                                       ("poppet_valve", 1.8), ("poppet_valve", 6.0), ("poppet_valve", 6.0)]
@@ -290,7 +291,7 @@ def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_th
     earlier_leak = SimpleNamespace(labels=("two_state", "leakage"), delta_bic=-400.0, effects={},
                                    effect="two_state+leakage")
     fits = [ts, valve, leak, earlier_valve, earlier_leak]
-    out = loop.two_state_pairs(None, fits, specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    out, _ = loop.two_state_pairs(None, fits, specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
     assert out == []  # both pairs were in the list already: nothing added
     pairs = [f for f in fits if len(f.labels) == 2]
     assert len(pairs) == 2

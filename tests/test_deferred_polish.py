@@ -103,3 +103,34 @@ def test_a_polish_that_does_not_gain_keeps_the_search_optimum(monkeypatch):
     polished, fits = _run({"p1": -40.0, "p2": -30.0}, {}, monkeypatch)
     assert polished == ["p1", "p2"]
     assert [(f.delta_bic, f.polish_pending, f.n_evaluations) for f in fits] == [(-40.0, False, 10), (-30.0, False, 10)]
+
+
+def test_a_later_screen_on_the_two_state_model_alone_starts_at_the_first_rounds_screen():
+    """With the two-state model alone selected, a later round screens each candidate at the first round's two-state
+    screen's best point and its optimum of the round before (points only); with any other selection on its whole grid,
+    the earlier optimum among the grid's points."""
+    ts, friction = CandidateSpec("two_state"), CandidateSpec("friction")
+    screen = {"points": {"friction": {"coulomb_N": 40.0}}}
+    earlier = {"friction": {"coulomb_N": 55.0}}
+    spec, only = loop.screen_spec(friction, earlier, screen, [ts])
+    assert only and spec.points == ({"coulomb_N": 40.0}, {"coulomb_N": 55.0})
+    spec, only = loop.screen_spec(friction, earlier, screen, [ts, CandidateSpec("series_compliance")])
+    assert not only and spec.points == ({"coulomb_N": 55.0},)
+    spec, only = loop.screen_spec(friction, {}, {}, [ts])
+    assert not only and spec is friction
+
+
+def test_a_grid_of_points_only_evaluates_those_points():
+    """``points_only``: the grid stage evaluates the spec's points and nothing else, and the screen's point is the
+    best of them."""
+    eng = _RoughEngine()
+    spec = dataclasses.replace(CandidateSpec("command_displacement"),
+                               points=({"bandwidth_Hz": 2.0, "damping_ratio": 0.5},
+                                       {"bandwidth_Hz": 8.0, "damping_ratio": 1.5}))
+    fit = fit_joint(eng, [spec], {}, {}, np.array([400.0]), np.array([400.0]), lambda e: None, lambda e: e,
+                    grid_only=True, points_only=True)
+    assert fit.cost["grid"]["evaluations"] == 2
+    assert fit.effects["command_displacement"] == {"bandwidth_Hz": 2.0, "damping_ratio": 0.5}
+    full = fit_joint(eng, [spec], {}, {}, np.array([400.0]), np.array([400.0]), lambda e: None, lambda e: e,
+                     grid_only=True)
+    assert full.cost["grid"]["evaluations"] > 10

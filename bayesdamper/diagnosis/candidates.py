@@ -142,7 +142,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
               idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
               grid_only: bool = False, intervals_to: float = math.inf, dtol: float = LM_DTOL,
-              polish: bool | None = None) -> CandidateFit:
+              polish: bool | None = None, points_only: bool = False) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -183,6 +183,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         The refinement's stop (:func:`_profile_lm`): :data:`~bayesdamper.diagnosis.engine.LM_DTOL` for values that
         are reported, the loop's looser :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH` for options it only
         ranks.
+    points_only : bool
+        The grid is the specs' whole points alone (``CandidateSpec.points``), where they give any: a screen on a
+        model that an earlier screen of the same candidates held (:func:`bayesdamper.diagnosis.loop.select_effects`).
     polish : bool, optional
         The Nelder-Mead polish of a search from the grid whose refinement did not converge (below). None: run it
         where it applies; False: defer it (the fit is returned with ``polish_pending`` and its caller decides,
@@ -306,8 +309,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     if len(flat) == 1 and max_iter == 0 and not grid_dims:  # the score and intervals at a known optimum
         z_hat = z0
     elif len(flat) == 1:
-        grid = np.array(sorted({*np.linspace(lo[0], hi[0], GRID_POINTS),
-                                *((starts_of(0) + [float(z[0]) for z in grid_points()]) if grid_dims else [])}))
+        own = [float(z[0]) for z in grid_points()] if grid_dims else []
+        grid = np.array(sorted(set(own)) if points_only and own else
+                        sorted({*np.linspace(lo[0], hi[0], GRID_POINTS), *((starts_of(0) + own) if grid_dims else [])}))
         vals = [grid_objective([g]) for g in grid]
         i = int(np.argmin(vals))
         a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
@@ -324,7 +328,12 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         searching = max_iter != 0 and not grid_only  # 0: evaluate at the start (intervals of a known optimum)
         cands: list = []
         vals: list = []
-        if grid_dims:
+        if grid_dims and points_only and grid_points():
+            cands = grid_points()
+            vals = [grid_objective(z) for z in cands]
+            best = cands[int(np.argmin(vals))]
+            stage("grid")
+        elif grid_dims:
             n_g = GRID_POINTS if len(grid_dims) == 1 else (GRID_POINTS - 2 if len(grid_dims) == 2 else 3)
             axes = [np.linspace(lo[j], hi[j], n_g) for j in grid_dims]
             pts = np.array(np.meshgrid(*axes, indexing="ij")).reshape(len(grid_dims), -1).T

@@ -13,10 +13,11 @@ identifier: the shared parameters re-fitted without it extrapolate to its speeds
 and reported; among the options that pass, the largest gain wins. Options
 are single candidates, pairs of the best ones and, in the first round, pairs of the two-state model with the
 candidates that best explain what it leaves (:func:`two_state_pairs`); every option re-fits the effects already
-selected jointly
-with the new ones (in a later round the candidates are first screened with them held, and the best re-fitted
-jointly); a pair must also meet the criterion over its better member alone (:func:`check_pairs`).
-Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
+selected jointly with the new ones (in a later round the candidates are first screened with them held,
+:func:`screen_spec`, and the best re-fitted jointly); a pair must also meet the criterion over its better member
+alone (:func:`check_pairs`). Only the first round's singles that can still decide get the simplex that finishes a
+refinement that did not converge (:func:`polish_contenders`). Otherwise the answer is "none". The options' searches
+stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected is refined to the reported one
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds
 keep the reported one. The search repeats until
@@ -94,6 +95,18 @@ def search_option(engine, specs, start, fixed, current_sse, n_eff, flow_for, **k
     The option selected is refined and given its intervals afterwards (:func:`select_effects`)."""
     return fit_joint(engine, specs, start, fixed, current_sse, n_eff, flow_for, effect_argument,
                      intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH, **kw)
+
+
+def screen_spec(spec: CandidateSpec, earlier: dict, ts_screen: dict, sel_specs: list) -> tuple[CandidateSpec, bool]:
+    """A candidate as a later round screens it: its optimum of the round before among its grid's points; and where the
+    selected effects are the two-state model alone, the model the first round's two-state screen held
+    (:func:`two_state_pairs`), the grid is that screen's best point and that optimum only (``points_only``): the grid
+    was ranked on this model there, up to the selection's final refinement. Returns the spec and ``points_only``."""
+    label = spec.label
+    again = ([ts_screen["points"][label]] if label in ts_screen.get("points", {})
+             and [sp.effect for sp in sel_specs] == [TWO_STATE] else [])
+    points = again + ([earlier[label]] if label in earlier else [])
+    return (dataclasses.replace(spec, points=tuple(points)) if points else spec), bool(again)
 
 
 def polish_contenders(engine, fits: list, specs: dict, fixed: dict, current_sse, n_eff, flow_for, progress) -> None:
@@ -192,6 +205,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     remaining = sorted(specs, key=lambda lab: (specs[lab].effect != TWO_STATE, _generic(lab, specs)))
     folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
     earlier: dict = {}  # each candidate's optimum in the round before: a point of its next screen's grid
+    ts_screen: dict = {}  # the first round's screen on the two-state model: each candidate's best point
     for rnd in range(MAX_ROUNDS):
         if not remaining:
             break
@@ -204,11 +218,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
             # after the first round: screened with the selected effects held at their values, by the grid alone,
             # its optimum of the round before among the grid's points ...
-            spec = specs[label]
-            if label in earlier:
-                spec = dataclasses.replace(spec, points=(earlier[label],))
+            spec, again = screen_spec(specs[label], earlier, ts_screen, sel_specs)
             fits.append(search_option(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
-                                      grid_only=bool(sel_specs), polish=False))
+                                      grid_only=bool(sel_specs), polish=False, points_only=again))
             progress.advance()
         polish_contenders(engine, fits, specs, fixed, current["sse"], n_eff, flow_for, progress)
         held = set()
@@ -237,7 +249,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                           current["sse"], n_eff, flow_for, new=(a.effect, b.effect)))
         if not sel_specs:
             search_step("two-state pairs")
-            fits += two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for, progress)
+            pairs, ts_screen = two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for,
+                                               progress)
+            fits += pairs
         fits.sort(key=lambda c: c.delta_bic)
         earlier = {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in fits
                    if len(c.labels) == 1 and c.labels[0] in specs and specs[c.labels[0]].effect in c.effects}
@@ -326,7 +340,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     return selected, fixed, rounds
 
 
-def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_sse, n_eff, flow_for, progress) -> list:
+def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_sse, n_eff, flow_for,
+                    progress) -> tuple[list, dict]:
     """Pairs of the two-state model with the candidates that best explain what it leaves.
 
     A rig effect seen through eq. (6)'s assumed pressures can be masked by them (a compliant mount on a two-state
@@ -343,16 +358,18 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     valve's profile has several basins, and the screen's coarse grid may start it in the wrong one; a two-state model
     that fits badly alone ends at no refill, where the refill's profile is flat, and the valve that best fits the
     refilling model can lie in another basin than the one the screen found on the model without refill.
-    Returns those joint fits (options like any pair). A pair the round has already fitted from its members' own
-    optima (both among its best singles) is fitted from these starts too, and the best of all its fits replaces it
-    in ``fits``: the members' optima can lie in the refill's flat part, which the refilling start leaves.
+    Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
+    model (a later round that holds the two-state model alone screens there instead of on the whole grid). A pair
+    the round has already fitted from its members' own optima (both among its best singles) is fitted from these
+    starts too, and the best of all its fits replaces it in ``fits``: the members' optima can lie in the refill's
+    flat part, which the refilling start leaves.
 
     The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
     fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
     while its pair with the mount is the answer."""
     ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
     if ts is None:
-        return []
+        return [], {}
     held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
     screened = []
     for label in remaining:
@@ -394,7 +411,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
             out.append(best)
         else:  # the pair of the round's best singles, fitted from their own optima: the better fit stands for it
             fits[fits.index(earlier)] = best
-    return out
+    return out, {"points": {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in screened}}
 
 
 def _generic(label: str, specs: dict) -> bool:
