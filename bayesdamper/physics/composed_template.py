@@ -12,7 +12,8 @@ Method: RODAS4 (Hairer & Wanner; the coefficients, step control and dense output
 Jacobian and time derivative, LU with partial pivoting once per step; no step across a knot of the
 piecewise-linear displacement, and a fresh initial step at every knot. The force at an output time is
 the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it (or A_P
-times the dense Δp when no active effect adds a force).
+times the dense Δp when no active effect adds a force). The accepted steps can be recorded and replayed (internal
+numerical differentiation, :func:`solve_composed`'s ``rec`` and ``rep``).
 """
 
 import math
