@@ -192,7 +192,7 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         screens = [c for c in calls if c[0] == "screen"]
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
-        assert sorted(screen["points"]) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
+        assert sorted(screen) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
         assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"),
                                            ("two_state", "backlash")]
 

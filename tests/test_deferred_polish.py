@@ -110,7 +110,7 @@ def test_a_later_screen_on_the_two_state_model_alone_starts_at_the_first_rounds_
     screen's best point and its optimum of the round before (points only); with any other selection on its whole grid,
     the earlier optimum among the grid's points."""
     ts, friction = CandidateSpec("two_state"), CandidateSpec("friction")
-    screen = {"points": {"friction": {"coulomb_N": 40.0}}}
+    screen = {"friction": {"coulomb_N": 40.0}}
     earlier = {"friction": {"coulomb_N": 55.0}}
     spec, only = loop.screen_spec(friction, earlier, screen, [ts])
     assert only and spec.points == ({"coulomb_N": 40.0}, {"coulomb_N": 55.0})

@@ -160,7 +160,7 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
             return ((r, True) if r is not None else (np.full(400, np.nan), False)) + ((None,) if record else ())
 
     E._PROBLEMS[:] = [Problem()]
-    x_hat, sse, r, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None, False))
+    x_hat, sse, r, *_ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, False, None, False))
     assert r is not None and x_hat[1] - 12.0 <= 0.1
     assert sse == pytest.approx(float(r @ r)) and sse < 0.9 * float(resid(start) @ resid(start))
 
@@ -174,7 +174,7 @@ def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():
             return super().simulate_inner(x, eff, flow, record=record)
 
     E._PROBLEMS[:] = [Counted()]
-    x_rough, sse_rough, r_rough, _ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None, False))
+    x_rough, sse_rough, r_rough, *_ = E._inner_fit((0, None, None, start + [5.0, 12.0], None, True, None, False))
     own = refit(lambda x: guarded(np.asarray(x) - [5.0, 12.0]), start + [5.0, 12.0], *INNER_BOX)
     assert own.converged is False  # the wall keeps the re-fit from converging within its solves
     assert len(solves) == own.n_solves
@@ -384,12 +384,12 @@ def test_the_worker_starts_from_the_nearer_optimum_only_where_it_fits_better():
         out = E._inner_fit((0, None, None, warm, None, False, near, False))
         return out, len(solves)
 
-    (x_w, s_w, _, _), n_w = run(None)
-    (x_n, s_n, _, _), n_n = run(opt + 0.01)
+    (x_w, s_w, *_), n_w = run(None)
+    (x_n, s_n, *_), n_n = run(opt + 0.01)
     assert s_n == pytest.approx(s_w, rel=1e-5) and np.allclose(x_n, x_w, atol=1e-3)
     assert n_n < n_w
     for bad in (np.array([2.0, 0.0]) + shift, np.array([1.4, 2.9]) + shift):  # fails there; fits worse there
-        (x_b, s_b, _, _), n_b = run(bad)
+        (x_b, s_b, *_), n_b = run(bad)
         assert s_b == s_w and np.array_equal(x_b, x_w)
         assert n_b == n_w + 1  # the neighbour's solve; the warm start's is not run twice
 
@@ -469,8 +469,8 @@ def test_a_model_made_current_re_fits_each_window_from_the_best_of_a_spread_of_s
     assert min(float(resid(x) @ resid(x)) for x in spread) > 40.0  # no raw start beats the well's optimum
     E._PROBLEMS[:] = [Problem()]
     for warm, local in ((np.array([7.88, 12.0]), True), (np.array([2.5, 12.5]), False)):
-        x_s, s_s, _, _ = E._inner_fit((0, None, None, warm, None, False, None, False))
-        x_k, s_k, _, _ = E._inner_fit((0, None, None, warm, None, False, None, True))
+        x_s, s_s, *_ = E._inner_fit((0, None, None, warm, None, False, None, False))
+        x_k, s_k, *_ = E._inner_fit((0, None, None, warm, None, False, None, True))
         assert s_k == pytest.approx(25.0, abs=1e-3) and x_k[0] == pytest.approx(bowl, abs=1e-2)
         if local:
             assert s_s > 35.0 and abs(x_s[0] - well) < 0.3  # the search's re-fit stays in the well

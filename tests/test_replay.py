@@ -76,3 +76,37 @@ def test_a_replay_that_does_not_fit_is_solved_with_error_control():
     replayed = _solve(TWO_STATE, 4000.0, 4e5, 1e-5, record=True, replay=steps)
     assert not np.array_equal(stiff[2], steps)
     assert np.array_equal(replayed[0], stiff[0]) and np.array_equal(replayed[2], stiff[2])
+
+
+def test_the_sensitivities_replay_the_steps_of_the_re_fit_they_difference_against(monkeypatch):
+    """The search's sensitivities to a shared parameter replay the steps its re-fit recorded at the window's optimum:
+    the same columns, bit for bit, as solving that optimum once more to record them, one solve fewer a window."""
+    from test_model_comparison import synthetic_windows
+
+    import bayesdamper.diagnosis.engine as E
+    from bayesdamper.inference.problem import EffectsProblem
+    from bayesdamper.physics.with_effects import effect_argument
+
+    problems, _, _, truth = synthetic_windows()
+    problems, truth = problems[:2], truth[:2]
+    engine = E.ProfileEngine(problems, [p.inner_start(a, pr) for p, (a, pr) in zip(problems, truth, strict=True)])
+    base = effect_argument(TWO_STATE)
+    bumped = effect_argument({"two_state": {**TWO_STATE["two_state"], "polytropic_exponent": 1.2 + 1e-3}})
+    engine.restart()
+    _, xs, resid = engine.evaluate(base, None)
+    solves = []
+    original = EffectsProblem.simulate_inner
+
+    def counted(self, *a, **kw):
+        solves.append(1)
+        return original(self, *a, **kw)
+
+    monkeypatch.setattr(EffectsProblem, "simulate_inner", counted)
+    carried = engine.sensitivities((base, None), [bumped], [None], np.array([1e-3]), [0, 1], xs, resid)
+    n_carried = len(solves)
+    engine._steps.clear()  # as after a record that overflowed: the optimum is solved again to record them
+    solves.clear()
+    again = engine.sensitivities((base, None), [bumped], [None], np.array([1e-3]), [0, 1], xs, resid)
+    assert all(np.array_equal(a, b) for a, b in zip(carried, again, strict=True))
+    assert np.all(np.isfinite(carried[0])) and np.any(carried[0] != 0.0)
+    assert (n_carried, len(solves)) == (2, 4)

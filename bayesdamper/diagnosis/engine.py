@@ -85,7 +85,7 @@ def _inner_fit(args):
     re-fit stops at :data:`ROUGH_TOLERANCES`). Effect values whose solve fails at the warm start itself (a chattering
     valve past the step cap, say) are infeasible at once. With ``spread`` (a model made current) the window is also
     re-fitted from the best of :func:`spread_starts`, and the better optimum is kept. Returns (x̂, SSE, residual,
-    Jacobian).
+    Jacobian, the steps of the solve at x̂: what its sensitivities replay, :func:`_psi_columns`).
     """
     k, eff, flow, warm, jac, rough, near, spread = args
     prob = _PROBLEMS[k]
@@ -158,7 +158,7 @@ def _inner_fit(args):
             other = finish(x_best, r_best)
             if other[1] < out[1]:
                 out = other
-    return out
+    return (*out, steps.get(np.asarray(out[0]).tobytes()) if out[2] is not None else None)
 
 
 def _solve_at(args):
@@ -176,18 +176,20 @@ def _solve_at(args):
 def _psi_columns(args):
     """Forward-difference columns ∂r/∂z_j of one window at its fitted own parameters (worker task).
 
-    ``base``: the effect argument and flow coefficients at z, solved once more here to record its steps, which every
-    perturbed solve replays (internal numerical differentiation: two error-controlled solves differ by their
-    tolerance's noise, which a difference over a small step magnifies); ``effs``/``flows``: the effect argument and
-    flow coefficients at z + h_j e_j for each j; a perturbed solve that fails gives a zero column (the direction is
-    then left to the damping).
+    ``steps``: those of the solve at z that gave ``r0`` (the re-fit's, :func:`_inner_fit`), which every perturbed
+    solve replays (internal numerical differentiation: two error-controlled solves differ by their tolerance's
+    noise, which a difference over a small step magnifies); without them (a record that overflowed) ``base``, the
+    effect argument and flow coefficients at z, is solved once more to record them. ``effs``/``flows``: the effect
+    argument and flow coefficients at z + h_j e_j for each j; a perturbed solve that fails gives a zero column (the
+    direction is then left to the damping).
     """
-    k, base, effs, flows, x, r0, hs = args
+    k, base, effs, flows, x, r0, hs, steps = args
     prob = _PROBLEMS[k]
     cols = np.zeros((r0.size, len(effs)))
-    f0, ok, steps = prob.simulate_inner(x, base[0], base[1], record=True)
-    if ok and np.all(np.isfinite(f0)):
-        r0 = f0 - prob.force
+    if steps is None:
+        f0, ok, steps = prob.simulate_inner(x, base[0], base[1], record=True)
+        if ok and np.all(np.isfinite(f0)):
+            r0 = f0 - prob.force
     for j, (eff, flow, h) in enumerate(zip(effs, flows, hs, strict=True)):
         f, ok = prob.simulate_inner(x, eff, flow, replay=steps)
         if ok and np.all(np.isfinite(f)):
@@ -226,6 +228,7 @@ class ProfileEngine:
         self.base_jac: list = [None] * self.n  # each window's Jacobian at the current model's optimum
         self._pool = None
         self._memo: dict | None = None  # task digest -> outcome, while :meth:`remembering`
+        self._steps: dict = {}  # steps of the re-fits' solves at their optima, for their sensitivities (_psi_columns)
         if self.workers > 1:
             import multiprocessing as mp
 
@@ -274,7 +277,8 @@ class ProfileEngine:
         the effect argument and flows at the point itself), at its fitted own parameters ``xs`` and residual
         ``resid`` (None: infeasible, no columns)."""
         ks = [int(i) for i in idx]
-        tasks = [(k, base, effs, flows, x, r, hs) for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
+        tasks = [(k, base, effs, flows, x, r, hs, self._steps.get(self._steps_key(k, x, *base)))
+                 for k, x, r in zip(ks, xs, resid, strict=True) if r is not None]
         cols = iter(self._map(_psi_columns, tasks))
         return [next(cols) if r is not None else None for r in resid]
 
@@ -304,6 +308,8 @@ class ProfileEngine:
         for k, o in zip(ks, out, strict=True):
             if o[3] is not None or keep:
                 self.jac[k] = o[3]
+            if o[4] is not None:
+                self._steps[self._steps_key(k, o[0], eff, flow)] = o[4]
         if keep:
             self.warm[:self.n] = list(xs)
             self.base_jac = list(self.jac[:self.n])
@@ -312,8 +318,15 @@ class ProfileEngine:
     def restart(self):
         """Every window's carried Jacobian back to the current model's (:meth:`evaluate` with ``keep``; the
         screening stretches' to none): a search then depends on the current model and its own candidate only,
-        not on which searches ran before it."""
+        not on which searches ran before it. The steps its re-fits recorded are forgotten."""
         self.jac = list(self.base_jac) + [None] * (len(self.problems) - self.n)
+        self._steps.clear()
+
+    @staticmethod
+    def _steps_key(k: int, x, eff, flow) -> tuple:
+        """Key of the steps window ``k``'s solve at its own parameters ``x`` with ``eff`` and ``flow`` recorded."""
+        return (k, np.asarray(x, dtype=float).tobytes(), eff.names, eff.values.tobytes(),
+                None if flow is None else flow.as_array().tobytes())
 
     def set_warm(self, xs) -> None:
         """Each window's warm start: ``xs``, one x per window from the first. The current model's Jacobians

@@ -103,8 +103,7 @@ def screen_spec(spec: CandidateSpec, earlier: dict, ts_screen: dict, sel_specs: 
     (:func:`two_state_pairs`), the grid is that screen's best point and that optimum only (``points_only``): the grid
     was ranked on this model there, up to the selection's final refinement. Returns the spec and ``points_only``."""
     label = spec.label
-    again = ([ts_screen["points"][label]] if label in ts_screen.get("points", {})
-             and [sp.effect for sp in sel_specs] == [TWO_STATE] else [])
+    again = [ts_screen[label]] if label in ts_screen and [sp.effect for sp in sel_specs] == [TWO_STATE] else []
     points = again + ([earlier[label]] if label in earlier else [])
     return (dataclasses.replace(spec, points=tuple(points)) if points else spec), bool(again)
 
@@ -359,10 +358,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     that fits badly alone ends at no refill, where the refill's profile is flat, and the valve that best fits the
     refilling model can lie in another basin than the one the screen found on the model without refill.
     Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
-    model (a later round that holds the two-state model alone screens there instead of on the whole grid). A pair
-    the round has already fitted from its members' own optima (both among its best singles) is fitted from these
-    starts too, and the best of all its fits replaces it in ``fits``: the members' optima can lie in the refill's
-    flat part, which the refilling start leaves.
+    model (``{label: values}``; a later round that holds the two-state model alone screens there instead of on the
+    whole grid). A pair the round has already fitted from its members' own optima (both among its best singles) is
+    fitted from these starts too, and the best of all its fits replaces it in ``fits``: the members' optima can lie
+    in the refill's flat part, which the refilling start leaves.
 
     The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
     fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
@@ -411,7 +410,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
             out.append(best)
         else:  # the pair of the round's best singles, fitted from their own optima: the better fit stands for it
             fits[fits.index(earlier)] = best
-    return out, {"points": {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in screened}}
+    return out, {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in screened}
 
 
 def _generic(label: str, specs: dict) -> bool:

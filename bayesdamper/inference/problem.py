@@ -111,9 +111,8 @@ class WindowProblem:
 #: Kernel tolerances of :class:`EffectsProblem` (the diagnosis's candidate search): the likelihood's. The search's
 #: forward differences replay the steps of the solve they are differenced against
 #: (:func:`~bayesdamper.physics.compose.solve_composed`), so their error is the discrete solution's, not the
-#: tolerance's noise over the difference's step: with error-controlled differences at this tolerance a window's
-#: Jacobian of a two-state model with a valve was off by up to 60 % (rig-A, against rtol 1e-8), and the search needed
-#: rtol 1e-6 (the reference inertance case of tests/test_confusion.py lost its only candidate at 1e-5).
+#: tolerance's noise over the difference's step (error-controlled differences, even at rtol 1e-6, put a two-state +
+#: valve window's Jacobian up to 41 % off on rig-A against rtol 1e-8; on replayed steps at this tolerance, 21 %).
 EFFECTS_RTOL = 1e-5
 EFFECTS_ATOL = 1.0  # [Pa]
 #: Box of a window's (log α_V, log p_R) in its least-squares re-fits: the priors' boxes.
