@@ -193,3 +193,33 @@ def test_only_flow_coefficients_cut_by_zero_are_sampled_as_logs():
     cov[5, 5] = (x[5] / (1.01 * JOINT_BOUND_SDS)) ** 2  # just beyond the rule's reach
     assert list(_cut_by_zero(x, lower, cov)) == []
     assert list(_cut_by_zero(x, lower, None)) == list(FLOW_DIMS)
+
+
+def test_a_window_near_a_prior_bound_is_sampled_with_the_pilots_proposal(segmented):
+    """A reversal sampled in the default box gets the Laplace proposal; in a box whose p_R bound lies below its
+    optimum (the MAP on the bound, as a slow test's p_R on the 10 MPa bound: the Gaussian at the MAP is cut by the
+    box) it gets the pilot's. Both are checked every JOINT_CHECK_EVERY steps and converge (R-hat, ESS and 50 τ
+    rules). The default box's 99 % intervals hold the truth (two intervals at 99 %: a calibrated posterior misses
+    one about 2 % of the time; seed 0 of 1, not chosen); the cut box's posterior of p_R is piled against its bound
+    (its median within its own 99 % interval's width of it) and inside it."""
+    from bayesdamper.inference.identify import BOUND_MOVE, JOINT_CHECK_EVERY, JOINT_MOVE
+
+    prior = _prior(joint.plateau_noise([segmented]))
+    tr = segmented.transients[1]
+
+    def run(top):
+        e = identify_window(tr, DAMPER, FlowCoefficients(*PAPER_FLOW),
+                            StageTwoSettings(credible_mass=0.99, p_r_bounds=(1.0e3, top)), 0, prior=prior).entry
+        assert e["converged"], (top, e["convergence"])
+        assert e["sampler"]["check_every"] == JOINT_CHECK_EVERY
+        return e
+
+    wide = run(1.0e7)
+    assert wide["sampler"]["move"] == JOINT_MOVE
+    assert wide["alpha_V"]["lo"] <= 40.0 <= wide["alpha_V"]["hi"], wide["alpha_V"]
+    assert wide["p_R_Pa"]["lo"] <= 2.5e5 <= wide["p_R_Pa"]["hi"], wide["p_R_Pa"]
+    top = 0.95 * wide["p_R_Pa"]["median"]
+    cut = run(top)
+    assert cut["sampler"]["move"] == BOUND_MOVE
+    p = cut["p_R_Pa"]
+    assert p["hi"] <= top and top - p["median"] < p["hi"] - p["lo"], p

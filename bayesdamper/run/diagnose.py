@@ -59,8 +59,8 @@ from bayesdamper.run.threads import one_blas_thread
 #: solver is L-stable). rig-A's final model takes 0.23 steps per sample.
 STEPS_PER_SAMPLE = 3
 #: Sampler of the final model's posteriors: the baseline's, with the independence proposal from a discarded DE
-#: pilot ("de+pilot") and checks every 50 steps (the same stopping rule, checked more often: with τ of a few steps
-#: the rule is met long before the next check 100 steps on). The effects' solves cost 20-50 times the eq. (7)
+#: pilot ("de+pilot") wherever the Gauss-Newton covariance does not give it, and checks every 50 steps (as the
+#: baseline's windows: with τ of a few steps the rule is met long before a check 100 steps on). The effects' solves cost 20-50 times the eq. (7)
 #: kernel's, and no Gauss-Newton covariance comes with these problems; on four of rig-A's transients with the final
 #: model τ fell from 12-14 to 2-4 steps and the evaluations from 36 000-58 000 to 9 000-14 000 at the same
 #: intervals. Where the pilot's Gaussian misses the posterior (a slow reversal's long, thin, curved (α_V, p_R)
