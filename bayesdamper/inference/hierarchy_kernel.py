@@ -23,10 +23,10 @@ LOG_SD_FLOOR = 1e-5
 
 
 @njit(cache=True)
-def _chol_solve_logdet(a, b):
-    """Cholesky of the small symmetric ``a``: (a⁻¹ b, log|a|, positive definite)."""
+def _chol_solve_logdet(a, b, low, y, x):
+    """Cholesky of the small symmetric ``a`` in the work array ``low``: ``x`` = a⁻¹ b (``y`` a work vector), and
+    (log|a|, positive definite)."""
     n = a.shape[0]
-    low = np.zeros((n, n))
     for i in range(n):
         for j in range(i + 1):
             s = a[i, j]
@@ -34,17 +34,15 @@ def _chol_solve_logdet(a, b):
                 s -= low[i, k] * low[j, k]
             if i == j:
                 if not s > 0.0:
-                    return b, 0.0, False
+                    return 0.0, False
                 low[i, i] = math.sqrt(s)
             else:
                 low[i, j] = s / low[j, j]
-    y = np.empty(n)
     for i in range(n):
         s = b[i]
         for k in range(i):
             s -= low[i, k] * y[k]
         y[i] = s / low[i, i]
-    x = np.empty(n)
     for i in range(n - 1, -1, -1):
         s = y[i]
         for k in range(i + 1, n):
@@ -53,7 +51,7 @@ def _chol_solve_logdet(a, b):
     logdet = 0.0
     for i in range(n):
         logdet += 2.0 * math.log(low[i, i])
-    return x, logdet, True
+    return logdet, True
 
 
 @njit(cache=True)
@@ -62,30 +60,39 @@ def hyper_log_density(x, means, covs, test_of, design, within, with_prior, prior
     covariance is not positive definite; the model of :class:`~bayesdamper.inference.hierarchy.HyperLogPosterior`.
 
     ``means`` (K, 2) and ``covs`` (K, 2, 2) of the windows' log (α_V, p_R), ``test_of`` (K,) their tests,
-    ``design`` (T, p) the law's row of each test.
+    ``design`` (T, p) the law's row of each test. The 2 x 2 algebra of every window and test is written out in
+    scalars, and the work arrays are allocated once per call: the sampler calls it for half an ensemble's walkers at
+    a time, tens of thousands of times a fit.
     """
     n_rows = x.shape[0]
     n_k = means.shape[0]
     n_t, p = design.shape
+    m2 = 2 * p
     out = np.full(n_rows, -np.inf)
+    s_t = np.zeros((n_t, 4))
+    g_t = np.zeros((n_t, 2))
+    xvx = np.zeros((m2, m2))
+    xvm = np.zeros(m2)
+    low = np.zeros((m2, m2))
+    work = np.zeros(m2)
+    beta = np.zeros(m2)
     for w in range(n_rows):
         s0, s1, r = x[w, 0], x[w, 1], x[w, 2]
-        sig = np.array([[s0 * s0, r * s0 * s1], [r * s0 * s1, s1 * s1]])
-        om = np.zeros((2, 2))
+        g00, g01, g11 = s0 * s0, r * s0 * s1, s1 * s1  # Σ
+        o00 = o01 = o11 = 0.0  # Ω
         if within:
             o0, o1, ro = x[w, 3], x[w, 4], x[w, 5]
-            om[0, 0], om[1, 1] = o0 * o0, o1 * o1
-            om[0, 1] = om[1, 0] = ro * o0 * o1
-        s_t = np.zeros((n_t, 2, 2))
-        g_t = np.zeros((n_t, 2))
+            o00, o01, o11 = o0 * o0, ro * o0 * o1, o1 * o1
+        s_t[:] = 0.0
+        g_t[:] = 0.0
         mpm = 0.0
         logdet = 0.0
         ok = True
         for k in range(n_k):
-            a00 = covs[k, 0, 0] + om[0, 0]
-            a01 = covs[k, 0, 1] + om[0, 1]
-            a10 = covs[k, 1, 0] + om[1, 0]
-            a11 = covs[k, 1, 1] + om[1, 1]
+            a00 = covs[k, 0, 0] + o00
+            a01 = covs[k, 0, 1] + o01
+            a10 = covs[k, 1, 0] + o01
+            a11 = covs[k, 1, 1] + o11
             det = a00 * a11 - a01 * a10
             if not det > 0.0:
                 ok = False
@@ -96,46 +103,61 @@ def hyper_log_density(x, means, covs, test_of, design, within, with_prior, prior
             q0, q1 = p00 * m0 + p01 * m1, p10 * m0 + p11 * m1
             mpm += m0 * q0 + m1 * q1
             t = test_of[k]
-            s_t[t, 0, 0] += p00
-            s_t[t, 0, 1] += p01
-            s_t[t, 1, 0] += p10
-            s_t[t, 1, 1] += p11
+            s_t[t, 0] += p00
+            s_t[t, 1] += p01
+            s_t[t, 2] += p10
+            s_t[t, 3] += p11
             g_t[t, 0] += q0
             g_t[t, 1] += q1
         if not ok:
             continue
-        xvx = np.zeros((2 * p, 2 * p))
-        xvm = np.zeros(2 * p)
+        xvx[:] = 0.0
+        xvm[:] = 0.0
         mvm = mpm
         for t in range(n_t):
-            s = s_t[t]
-            b = np.eye(2) + sig @ s
-            det = b[0, 0] * b[1, 1] - b[0, 1] * b[1, 0]
+            # S = s_t[t] (the test's summed window precisions), B = I + Σ S, K = B⁻¹ Σ
+            c00, c01, c10, c11 = s_t[t, 0], s_t[t, 1], s_t[t, 2], s_t[t, 3]
+            b00 = 1.0 + g00 * c00 + g01 * c10
+            b01 = g00 * c01 + g01 * c11
+            b10 = g01 * c00 + g11 * c10
+            b11 = 1.0 + g01 * c01 + g11 * c11
+            det = b00 * b11 - b01 * b10
             if not det > 0.0:
                 ok = False
                 break
             logdet += math.log(det)
-            binv = np.array([[b[1, 1], -b[0, 1]], [-b[1, 0], b[0, 0]]]) / det
-            kmat = binv @ sig
-            sk = s @ kmat
-            q = s - sk @ s
-            g = g_t[t]
-            h = g - sk @ g
-            kg = kmat @ g
-            mvm -= g[0] * kg[0] + g[1] * kg[1]
-            for i in range(2):
-                for a in range(p):
-                    xvm[i * p + a] += h[i] * design[t, a]
-                    for j in range(2):
-                        for c in range(p):
-                            xvx[i * p + a, j * p + c] += q[i, j] * design[t, a] * design[t, c]
+            k00 = (b11 * g00 - b01 * g01) / det
+            k01 = (b11 * g01 - b01 * g11) / det
+            k10 = (b00 * g01 - b10 * g00) / det
+            k11 = (b00 * g11 - b10 * g01) / det
+            # SK, then the precision of a constant over the test Q = S - SK S and its data term h = g - SK g
+            sk00, sk01 = c00 * k00 + c01 * k10, c00 * k01 + c01 * k11
+            sk10, sk11 = c10 * k00 + c11 * k10, c10 * k01 + c11 * k11
+            q00 = c00 - (sk00 * c00 + sk01 * c10)
+            q01 = c01 - (sk00 * c01 + sk01 * c11)
+            q10 = c10 - (sk10 * c00 + sk11 * c10)
+            q11 = c11 - (sk10 * c01 + sk11 * c11)
+            e0, e1 = g_t[t, 0], g_t[t, 1]
+            h0 = e0 - (sk00 * e0 + sk01 * e1)
+            h1 = e1 - (sk10 * e0 + sk11 * e1)
+            mvm -= e0 * (k00 * e0 + k01 * e1) + e1 * (k10 * e0 + k11 * e1)
+            for a in range(p):
+                da = design[t, a]
+                xvm[a] += h0 * da
+                xvm[p + a] += h1 * da
+                for c in range(p):
+                    dd = da * design[t, c]
+                    xvx[a, c] += q00 * dd
+                    xvx[a, p + c] += q01 * dd
+                    xvx[p + a, c] += q10 * dd
+                    xvx[p + a, p + c] += q11 * dd
         if not ok:
             continue
-        beta, ld_x, pd = _chol_solve_logdet(xvx, xvm)
+        ld_x, pd = _chol_solve_logdet(xvx, xvm, low, work, beta)
         if not pd:
             continue
         quad = mvm
-        for i in range(2 * p):
+        for i in range(m2):
             quad -= beta[i] * xvm[i]
         val = -0.5 * quad - 0.5 * logdet - 0.5 * ld_x
         if with_prior:
