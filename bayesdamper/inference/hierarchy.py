@@ -42,8 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bayesdamper.inference.hierarchy_kernel import LOG_SD_FLOOR, hyper_log_density
-from bayesdamper.inference.logscale import LogScaled
+from bayesdamper.inference.hierarchy_kernel import LOG_SD_FLOOR, LogSdTarget, hyper_log_density
 
 #: The parameters of the law, in the order of the last axis of every array here.
 NAMES = ("alpha_V", "p_R_Pa")
@@ -446,7 +445,7 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
     x0 = np.clip(x0, lower + 1e-6, upper - 1e-6)
     best = minimize(neg, x0, method="Nelder-Mead", options={"maxiter": 4000, "xatol": 1e-6, "fatol": 1e-8})
     start = np.clip(best.x if best.fun < neg(x0) else x0, lower + 1e-4, upper - 1e-4)
-    logsd = LogScaled(target, [0, 1] + ([3, 4] if target.within else []), lower, upper, LOG_SD_FLOOR)
+    logsd = LogSdTarget(target, [0, 1] + ([3, 4] if target.within else []), LOG_SD_FLOOR, SCATTER_PRIOR_SCALE)
     # the start in log sd at least at a hundredth of the means' scatter (sd = 0 is no mode of the log-sd density)
     u0 = logsd.to_u(np.maximum(start, np.r_[0.01 * sd0, -1.0, (0.01 * sd0) if target.within else [],
                                             [-1.0] if target.within else []]))
