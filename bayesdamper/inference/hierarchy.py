@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bayesdamper.inference.hierarchy_kernel import LOG_SD_FLOOR, LogSdTarget, hyper_log_density
+from bayesdamper.inference.hierarchy_kernel import HYPER_MAX_STEPS, LOG_SD_FLOOR, LogSdTarget, hyper_log_density
 
 #: The parameters of the law, in the order of the last axis of every array here.
 NAMES = ("alpha_V", "p_R_Pa")
@@ -395,7 +395,8 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
     seed : int
         Seeds the sampler.
     sampler : SamplerSettings, optional
-        Default: 3 ensembles of :data:`N_WALKERS` walkers, the "de+laplace" move, checks every 250 steps.
+        Default: 3 ensembles of :data:`N_WALKERS` walkers, the "de+laplace" move, checks every 250 steps, at most
+        :data:`~bayesdamper.inference.hierarchy_kernel.HYPER_MAX_STEPS` steps.
     v_c, v_s : float, optional
         Centre and scale of the speed [m/s] (default: mean and sd of the tests' speeds).
     covariate_name : str, optional
@@ -451,7 +452,7 @@ def fit_hierarchy(windows: list[WindowDraws], *, degree: int = 1, seed: int = 0,
                                             [-1.0] if target.within else []]))
     u0 = np.clip(u0, logsd.lower + 1e-4, logsd.upper - 1e-4)
     settings = sampler or SamplerSettings(n_walkers=max(N_WALKERS, 2 * start.size + 2), move="de+laplace",
-                                          check_every=250)
+                                          check_every=250, max_steps=HYPER_MAX_STEPS)
     res = sample_posterior(logsd, u0, logsd.lower, logsd.upper, settings, seed, progress)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 29]))
     scatter = logsd.to_theta(res.flat())

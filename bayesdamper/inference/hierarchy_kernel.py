@@ -23,6 +23,11 @@ from bayesdamper.inference.logscale import LogScaled
 #: the Jacobian sd and falls off exponentially below the data's resolution. The half-Cauchy's mass below the floor
 #: (about 0.64 · floor / the prior's scale) is left out.
 LOG_SD_FLOOR = 1e-5
+#: Step budget of the hyper-posterior's ensembles. The ensembles mix slowly on it (τ of 100-220 steps on independent
+#: 33-window sets and on rig-A, in every parameter: the between-test sds' long lower tails and a correlation piled
+#: against its bound), so the 50 τ rule after a burn-in of 10 τ asks up to some 13 000 steps; 40 000 covers τ up to
+#: 660. A step costs the sampler's own Python more than the density (0.6 µs a row), some 0.2 ms.
+HYPER_MAX_STEPS = 40_000
 
 
 @njit(cache=True)
