@@ -58,16 +58,6 @@ from bayesdamper.run.threads import one_blas_thread
 #: counts as a failed solve there instead of taking up to 100 000 steps (stiff, decaying modes cost few steps: the
 #: solver is L-stable). rig-A's final model takes 0.23 steps per sample.
 STEPS_PER_SAMPLE = 3
-#: Sampler of the final model's posteriors: the baseline's, with the independence proposal from a discarded DE
-#: pilot ("de+pilot") wherever the Gauss-Newton covariance does not give it, and checks every 50 steps (as the
-#: baseline's windows: with τ of a few steps the rule is met long before a check 100 steps on). The effects'
-#: solves cost 20-50 times the eq. (7) kernel's, and no Gauss-Newton covariance comes with these problems; on
-#: four of rig-A's transients with the final model τ fell from 12-14 to 2-4 steps and the evaluations from
-#: 36 000-58 000 to 9 000-14 000 at the same intervals. Where the pilot's Gaussian misses the posterior (a slow
-#: reversal's long, thin, curved (α_V, p_R) ridge, whose optimiser start can lie far down the ridge from the mass)
-#: the proposal follows the ridge's crest and the ensembles restart from it
-#: (:func:`~bayesdamper.inference.proposals.ridge_proposal`); the move's tests are in tests/test_sampling.py.
-FINAL_MOVE, FINAL_CHECK_EVERY = "de+pilot", 50
 #: Walkers per ensemble of the final model's posteriors (3 ensembles as always): 8 instead of the baseline's 12.
 #: With τ of 3 steps the stopping rule's 50 τ, not the ESS, sets the chain's length, and ESS ≥ 1000 is met by
 #: 24 walkers as by 36; on three of rig-A's transients with the final model the evaluations fell by a
@@ -116,10 +106,10 @@ def _test_speeds(transients) -> list[float]:
 
 
 def final_settings(settings: StageTwoSettings) -> StageTwoSettings:
-    """Stage-2 settings of the final model's posteriors (:data:`FINAL_MOVE`, :data:`FINAL_WALKERS`)."""
-    return dataclasses.replace(settings, sampler=dataclasses.replace(settings.sampler, move=FINAL_MOVE,
-                                                                     check_every=FINAL_CHECK_EVERY,
-                                                                     n_walkers=FINAL_WALKERS))
+    """Stage-2 settings of the final model's posteriors: the baseline's with :data:`FINAL_WALKERS` walkers (each
+    window's move and checks are its own, as the baseline's: :data:`~bayesdamper.inference.identify.JOINT_MOVE`, or
+    :data:`~bayesdamper.inference.identify.BOUND_MOVE` near a prior bound)."""
+    return dataclasses.replace(settings, sampler=dataclasses.replace(settings.sampler, n_walkers=FINAL_WALKERS))
 
 
 @dataclass
