@@ -153,7 +153,7 @@ def test_kernel_source_names_no_effect_and_guards_every_hook():
     for i, name in enumerate(names):
         mod = EFFECT_MODULES[name]
         hooks = {h for h in ("displacement", "flow", "pressures", "moduli", "chamber_flows", "derivatives", "force",
-                             "force_acts", "initial", "state_atol") if hasattr(mod, h)}
+                             "force_acts", "force_reads", "initial", "state_atol") if hasattr(mod, h)}
         assert calls.get(f"_e{i}", set()) == hooks, name
     lay, n_states = layout(("friction", "valve_dynamics", "inertia"))
     active = [names[i] for i in np.flatnonzero(lay[:, L_ACTIVE])]
@@ -182,3 +182,97 @@ def test_step_cap_fails_the_solve_and_is_counted_in_accepted_steps():
     f2, status2 = _composed(eff, 2.0e5, 1e-3, max_steps=hi)
     assert status2 == STATUS_OK and np.array_equal(f, f2) and _composed(eff, 2.0e5, 1e-3, max_steps=hi - 1)[1] \
         == STATUS_MAX_STEPS
+
+
+
+def test_the_signals_a_force_reads_are_those_of_the_right_hand_side():
+    """At an output time the kernel sets only the signals the active forces read (their ``force_reads`` level): t
+    and Δp, or also the motion (``_motion_at``: input and displacement path). The motion's must equal those of the
+    full right-hand side, with a displacement-path effect (actuator lag, with a state) active; with a series
+    compliance the motion's level gives way to every signal (v_P then depends on dΔp/dt)."""
+    from bayesdamper.physics.composed_template import FORCE_MOTION, FORCE_SIGNALS
+    from bayesdamper.physics.effects.signals import AA, DP, N_SIGNALS, VA, VP, YA, YP, T
+
+    mod = compose_mod.kernel()
+    c = compose({"actuator_lag": {"time_constant_s": 0.02}, "friction": {"coulomb_N": 80.0},
+                 "unnamed_dynamics": {"gain": 1e-3, "driver": 0.0, "mode": 1.0}})
+    d = c.transform_input(DRIVE)
+    ns = 1 + sum(len(getattr(EFFECT_MODULES[n], "STATES", ())) for n in c.names)
+    base = np.array([D.piston_area, D.chamber_volume_1, D.chamber_volume_2, D.liquid_bulk_modulus, 40.0, 3e5, *FLOW,
+                     0.0])
+    assert mod._output_mode(c.layout, c.values, base) == FORCE_MOTION
+    assert mod._output_mode(c.layout, c.values, np.r_[base[:-1], 1e-9]) == FORCE_SIGNALS
+    read = [T, YA, VA, AA, YP, VP, DP]
+    rng = np.random.default_rng(5)
+    for t in (1.5, 3.3, 6.2, 9.9):
+        a = int(np.searchsorted(d.breaks, t)) - 1
+        s = np.r_[2e5 * rng.standard_normal(), 1e-5 * rng.standard_normal(ns - 1)]
+        ref = np.full(N_SIGNALS, np.nan)
+        assert mod._rhs(t, s, np.zeros(ns), ref, c.values, base, d.breaks, d.coefs, np.array([a, a + 1, a]), c.layout)
+        sig = np.full(N_SIGNALS, np.nan)
+        ya, va, aa, _ = mod._drive(t, d.breaks, d.coefs, a, a + 1, a)
+        mod._motion_at(t, s, np.zeros(ns), sig, c.values, base, ya, va, aa, c.layout)
+        np.testing.assert_array_equal(sig[read], ref[read])
+        assert np.isfinite(ref[read]).all() and ref[VP] != va  # the lag's state moves the piston off the input
+
+
+def test_forces_from_the_states_equal_those_from_every_signal():
+    """A force that reads only t, Δp and its states (``force_from_state``) is evaluated at the samples from the dense
+    output alone; with a force that reads the piston velocity beside it (friction: no state, nothing in the ODE) the
+    kernel evaluates every signal there instead. Both must give the same force to rounding: friction's own force at
+    the drive's velocity (no compliance: v_P is the drive's) is all that differs. On the full kernel (a Δp-driven
+    transient filter on the force, with states) and on eq. (7)'s own kernel (a load-cell offset, no state)."""
+    from bayesdamper.physics.effects.friction import friction_force
+
+    fric = {"friction": {"coulomb_N": 150.0, "viscous_Ns_per_m": 2.0e4}}
+    v = DRIVE.velocity(T_OUT)
+    f_fric = friction_force(v, coulomb_N=150.0, viscous_Ns_per_m=2.0e4)
+    for eff in ({"unnamed_dynamics": {"gain": 2e-3, "natural_frequency_Hz": 2.0, "damping_ratio": 0.2, "driver": 0.0,
+                                      "law": 2.0, "threshold": 1.0e5, "mode": 1.0, "placement": 0.0}},
+                {"load_cell_offset": {"offset_N": -120.0}}):
+        f_state, status = _composed(eff, 2.0e5, 1e-3)
+        assert status == STATUS_OK
+        f_signals, status = _composed({**eff, **fric}, 2.0e5, 1e-3)
+        assert status == STATUS_OK
+        assert np.max(np.abs(f_signals - f_fric - f_state)) < 1e-9 * np.max(np.abs(f_state))
+        base, _ = _composed({}, 2.0e5, 1e-3)
+        assert np.max(np.abs(f_state - base)) > 10.0  # the effect acts
+
+
+def test_solves_leave_no_allocation_behind():
+    """The right-hand side, force and motion functions count no references (``NO_REFCOUNT``): every array a solve
+    allocates must still be freed. NRT's allocation counters (on only when set before numba starts: a fresh
+    process) over solves of every output level, a state effect, a chattering-prone valve and a failing solve."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np
+from numba.core.runtime import rtsys
+from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
+from bayesdamper.physics.compose import compose, solve_composed
+from bayesdamper.physics.excitation import PiecewisePolynomial
+drive = PiecewisePolynomial.from_knots(np.array([0.0, 1.0, 3.0, 7.0]), np.array([0.0, 0.0, 2e-3, -2e-3]))
+t = 1.0 + np.arange(1, 2000) / 400.0
+cases = [{}, {"load_cell_offset": {"offset_N": 5.0}}, {"friction": {"coulomb_N": 50.0}},
+         {"actuator_lag": {"time_constant_s": 0.02}, "friction": {"coulomb_N": 50.0}},
+         {"poppet_valve": {"natural_frequency_Hz": 2.0}, "unnamed_dynamics": {"gain": 1e-3, "mode": 1.0}},
+         {"series_compliance": {"stiffness_N_per_m": 2e7}, "seal_friction": {"stribeck_N": 100.0}}]
+def run():
+    for eff in cases:
+        c = compose(eff)
+        for cap in (None, 3):  # and a solve failing at its step cap
+            solve_composed(c, t, c.transform_input(drive), 1.0, 0.0, 0.0, RIG_A_DAMPER, PAPER_FLOW.as_array(), 40.0,
+                           3e5, 1e-6, 1.0, max_steps=cap)
+run()
+s0 = rtsys.get_allocation_stats()
+for _ in range(20):
+    run()
+s1 = rtsys.get_allocation_stats()
+print(s1.alloc - s0.alloc, s1.free - s0.free, s1.mi_alloc - s0.mi_alloc, s1.mi_free - s0.mi_free)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "NUMBA_NRT_STATS": "1"})
+    alloc, free, mi_alloc, mi_free = map(int, out.stdout.split())
+    assert alloc > 0 and alloc == free and mi_alloc == mi_free, out.stdout

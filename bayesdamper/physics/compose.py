@@ -197,11 +197,29 @@ def kernel_source() -> str:
     lines += [f"    if lay[{i}, 0]:\n        n += {n}" for i, (_, _, n) in enumerate(rows) if n]
     lines += ["    return n", "", "",
               "@njit(cache=True)",
-              "def _force_needs_signals(lay, prm):"]
-    lines += guarded("force", lambda i, a, n: ([f"if {a}.force_acts({p(i)}):", "    return True"]
-                                               if has(rows[i][1], "force_acts") else ["return True"]))
-    lines += ["    return False", "", "",
-              "@njit(cache=True, error_model=\"numpy\")",
+              "def _force_mode(lay, prm):",
+              "    mode = FORCE_DP"]
+
+    def force_mode(i, a, n):
+        mod = rows[i][1]
+        body = [f"mode = max(mode, {a}.force_reads({p(i)}))"] if has(mod, "force_reads") else ["return FORCE_SIGNALS"]
+        return [f"if {a}.force_acts({p(i)}):"] + ["    " + b for b in body] if has(mod, "force_acts") else body
+
+    lines += guarded("force", force_mode)
+    lines += ["    return mode", "", "",
+              "@njit(cache=True, error_model=\"numpy\", inline=\"always\", **NO_REFCOUNT)",
+              "def _motion_at(t, s, scratch, sig, prm, base, ya, va, aa, lay):",
+              "    sig[T] = t",
+              "    sig[YA] = ya",
+              "    sig[VA] = va",
+              "    sig[AA] = aa",
+              "    sig[YP] = ya",
+              "    sig[VP] = va"]
+    lines += guarded("displacement", lambda i, a, n: [
+        f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})", "sig[YP] = y", "sig[VP] = v"])
+    lines += ["    sig[DP] = s[0]",
+              "    sig[YP] = sig[YP] - base[B_COMP] * base[B_AREA] * s[0]", "", "",
+              "@njit(cache=True, error_model=\"numpy\", **NO_REFCOUNT)",
               "def _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay):",
               "    sig[T] = t",
               "    sig[YA] = ya",
@@ -268,7 +286,7 @@ def kernel_source() -> str:
               "    ds[0] = ddp"]
     lines += guarded("derivatives", lambda i, a, n: [f"{a}.derivatives(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})"])
     lines += ["    return math.isfinite(ddp)", "", "",
-              "@njit(cache=True, error_model=\"numpy\")",
+              "@njit(cache=True, error_model=\"numpy\", **NO_REFCOUNT)",
               "def _force(sig, s, prm, base, lay):",
               "    f = base[B_AREA] * s[0]"]
     lines += guarded("force", lambda i, a, n: [f"f += {a}.force(sig, {z(i, n)}, {p(i)})"])

@@ -2,7 +2,7 @@
 """The solver half of a composed kernel: :mod:`bayesdamper.physics.compose` appends the model half.
 
 This file is never imported on its own. :func:`bayesdamper.physics.compose.kernel` writes its text,
-followed by generated definitions of ``_n_states``, ``_force_needs_signals``, ``_rhs_at``, ``_force``,
+followed by generated definitions of ``_n_states``, ``_force_mode``, ``_motion_at``, ``_rhs_at``, ``_force``,
 ``_init`` and ``_atol`` calling the hooks of every registered effect, each only when the runtime layout
 ``lay`` marks it active, into a module of the kernel cache and imports that: numba compiles (and caches on
 disk) one kernel for every combination of effects, once per machine.
@@ -12,7 +12,8 @@ Method: RODAS4 (Hairer & Wanner; the coefficients, step control and dense output
 Jacobian and time derivative, LU with partial pivoting once per step; no step across a knot of the
 piecewise-linear displacement, and a fresh initial step at every knot. The force at an output time is
 the model evaluated at the dense-output state, so every signal (v_P, dΔp/dt) is consistent with it (or A_P
-times the dense Δp when no active effect adds a force). The accepted steps can be recorded and replayed (internal
+times the dense Δp when no active effect adds a force; from the dense states and the signals of the motion alone when
+every active force reads no other, ``force_reads``). The accepted steps can be recorded and replayed (internal
 numerical differentiation, :func:`solve_composed`'s ``rec`` and ``rep``).
 """
 
@@ -20,8 +21,9 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.core.cpu import CPUTargetOptions
 
-from bayesdamper.physics.effects.signals import N_SIGNALS
+from bayesdamper.physics.effects.signals import FORCE_READS_ANY, FORCE_READS_MOTION, FORCE_READS_STATE, N_SIGNALS
 from bayesdamper.physics.rodas import (
     _GAMMA,
     STATUS_BAD_INPUT,
@@ -43,6 +45,12 @@ from bayesdamper.physics.single_state import drive as _drive
 from bayesdamper.physics.single_state import next_restart as _next_restart
 from bayesdamper.physics.single_state import solve_eq7 as _solve_eq7
 
+#: Compile options of the functions called at every stage and output time that only read, write and slice arrays
+#: their caller owns (the right-hand side, the force, the motion's signals): no reference counting (numba's
+#: ``_nrt`` option, where this numba has it). Each slice an effect's hook is handed would otherwise take an atomic
+#: increment and decrement of its array's count, which on rig-A's final model cost 40 % of a solve; these functions
+#: allocate nothing and hand back only scalars, so no count is ever needed. Effect hooks must return scalars.
+NO_REFCOUNT = {"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}
 #: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
 #: A replayed step whose error estimate exceeds this many times the tolerance ends the replay (the solve is done
@@ -52,6 +60,11 @@ REPLAY_ERR_MAX = 10.0
 # layout of the ``base`` vector
 B_AREA, B_V01, B_V02, B_B0, B_ALPHA, B_PR, B_FL0, B_FL1, B_FL2, B_FL3, B_COMP = range(11)
 N_BASE = 11
+#: How the force at an output time is evaluated (``_force_mode``): A_P Δp (no active effect adds a force); from the
+#: states, t and Δp; from those and the motion's signals (``_motion_at``: the input and the displacement path, the
+#: series compliance's only when it is off); from every signal (a right-hand side there). The levels of the effects'
+#: ``force_reads`` hooks (:mod:`bayesdamper.physics.effects.signals`) but the first.
+FORCE_DP, FORCE_STATES, FORCE_MOTION, FORCE_SIGNALS = 0, FORCE_READS_STATE, FORCE_READS_MOTION, FORCE_READS_ANY
 
 
 @njit(cache=True, error_model="numpy")
@@ -107,13 +120,23 @@ def _err_norm(v, x, xn, sc_a, rtol):
     return math.sqrt(acc / n)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", **NO_REFCOUNT)
 def _rhs(t, s, ds, sig, prm, base, brk, coef, seg, lay):
     """The model's right-hand side at ``t`` with the input's polynomial pieces (``seg``: the restart interval's
     first and end piece and the piece last used, updated)."""
     ya, va, aa, j = _drive(t, brk, coef, seg[0], seg[1], seg[2])
     seg[2] = j
     return _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay)
+
+
+@njit(cache=True, error_model="numpy")
+def _output_mode(lay, prm, base):
+    """How the force is evaluated at the output times (:data:`FORCE_DP`...): the effects' ``_force_mode``, every
+    signal where the motion's would need the series compliance's rate (v_P depends on dΔp/dt then)."""
+    mode = _force_mode(lay, prm)
+    if mode == FORCE_MOTION and base[B_COMP] != 0.0:
+        return FORCE_SIGNALS
+    return mode
 
 
 @njit(cache=True, error_model="numpy")
@@ -149,13 +172,22 @@ def solve_force_only(t_out, brk, coef, restart, dp0, v_prev, base, prm, rtol, at
     if status != STATUS_OK:
         return out, status
     seg[1] = _next_restart(restart, 0)
+    mode = _output_mode(lay, prm, base)
     for i in range(n_t):  # the effects' forces at the samples, from the same hooks as the full kernel
-        while seg[1] < m and t_out[i] > brk[seg[1]]:  # a sample on a velocity step takes the piece ending there
-            seg[0] = seg[1]
-            seg[2] = seg[1]
-            seg[1] = _next_restart(restart, seg[0])
         x[0] = dp[i]
-        if not _rhs(t_out[i], x, f0, sig, prm, base, brk, coef, seg, lay):
+        if mode >= FORCE_MOTION:
+            while seg[1] < m and t_out[i] > brk[seg[1]]:  # a sample on a velocity step takes the piece ending there
+                seg[0] = seg[1]
+                seg[2] = seg[1]
+                seg[1] = _next_restart(restart, seg[0])
+        if mode == FORCE_STATES:  # the signals inline: a call with the arrays costs more than the force itself
+            sig[T] = t_out[i]
+            sig[DP] = x[0]
+        elif mode == FORCE_MOTION:
+            ya, va, aa, j = _drive(t_out[i], brk, coef, seg[0], seg[1], seg[2])
+            seg[2] = j
+            _motion_at(t_out[i], x, f0, sig, prm, base, ya, va, aa, lay)
+        elif mode == FORCE_SIGNALS and not _rhs(t_out[i], x, f0, sig, prm, base, brk, coef, seg, lay):
             return out, STATUS_NONFINITE
         out[i] = _force(sig, x, prm, base, lay)
     return out, STATUS_OK
@@ -220,7 +252,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         if not math.isfinite(prm[j]) and not prm[j] == math.inf:
             return out, STATUS_BAD_INPUT, n_rec
     ns = _n_states(lay)
-    force_needs_signals = _force_needs_signals(lay, prm)
+    force_mode = _output_mode(lay, prm, base)
     sig = np.full(N_SIGNALS, np.nan)
     x = np.zeros(ns)
     x_new = np.zeros(ns)
@@ -423,11 +455,18 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                     n_rec += 1
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
-                    if force_needs_signals:
+                    if force_mode != FORCE_DP:
                         for i in range(ns):
                             cd3, cd4 = dense_coefficients(ks[0, i], ks[1, i], ks[2, i], ks[3, i], ks[4, i])
                             xd[i] = dense_value(x[i], x_new[i], cd3, cd4, s)
-                        if not _rhs(t_out[i_out], xd, f1, sig, prm, base, brk, coef, seg, lay):
+                        if force_mode == FORCE_STATES:  # inline, as in solve_force_only
+                            sig[T] = t_out[i_out]
+                            sig[DP] = xd[0]
+                        elif force_mode == FORCE_MOTION:
+                            ya, va, aa, jd = _drive(t_out[i_out], brk, coef, seg[0], seg[1], seg[2])
+                            seg[2] = jd
+                            _motion_at(t_out[i_out], xd, f1, sig, prm, base, ya, va, aa, lay)
+                        elif not _rhs(t_out[i_out], xd, f1, sig, prm, base, brk, coef, seg, lay):
                             return out, STATUS_NONFINITE, n_rec
                         out[i_out] = _force(sig, xd, prm, base, lay)
                     else:  # F = A_P Δp: the dense output of Δp alone

@@ -21,9 +21,9 @@ import numpy as np
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import VP
+from bayesdamper.physics.effects.signals import FORCE_READS_MOTION, VP
 
-__all__ = ["EFFECT", "SIGN_VELOCITY_M_S", "force", "friction_force", "friction_force_scalar"]
+__all__ = ["EFFECT", "SIGN_VELOCITY_M_S", "force", "force_reads", "friction_force", "friction_force_scalar"]
 
 #: Velocity scale v_s of the smoothed sign tanh(v / v_s) [m/s]: 1 % of the slowest test speed.
 SIGN_VELOCITY_M_S = 1.0e-5
@@ -79,3 +79,9 @@ def friction_force(v: np.ndarray | float, coulomb_N: float = 0.0, viscous_Ns_per
 def force(sig, z, p):
     """Friction force [N] at the piston velocity (hook of :mod:`bayesdamper.physics.effects.signals`)."""
     return friction_force_scalar(sig[VP], p[0], p[1], p[2], p[3])
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """The piston velocity."""
+    return FORCE_READS_MOTION

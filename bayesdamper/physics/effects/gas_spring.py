@@ -10,9 +10,9 @@ from __future__ import annotations
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import YP
+from bayesdamper.physics.effects.signals import FORCE_READS_MOTION, YP
 
-__all__ = ["EFFECT", "force"]
+__all__ = ["EFFECT", "force", "force_reads"]
 
 EFFECT = Effect(
     name="gas_spring",
@@ -27,3 +27,9 @@ EFFECT = Effect(
 def force(sig, z, p):
     """k_g y_P [N]."""
     return p[0] * sig[YP]
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """The piston position."""
+    return FORCE_READS_MOTION

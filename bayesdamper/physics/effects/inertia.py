@@ -17,9 +17,9 @@ from __future__ import annotations
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import AA, VA
+from bayesdamper.physics.effects.signals import AA, FORCE_READS_MOTION, VA
 
-__all__ = ["CORNER_TIME_S", "EFFECT", "STATES", "STATE_ATOL", "derivatives", "force", "initial"]
+__all__ = ["CORNER_TIME_S", "EFFECT", "STATES", "STATE_ATOL", "derivatives", "force", "force_reads", "initial"]
 
 #: Time constant of the rig controller's corner rounding of the piston velocity [s].
 CORNER_TIME_S = 0.05
@@ -56,3 +56,9 @@ def force(sig, z, p):
 def initial(sig, p, z):
     """Steady filter: v_f = v_prev."""
     z[0] = sig[VA]
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """The input's velocity and acceleration."""
+    return FORCE_READS_MOTION

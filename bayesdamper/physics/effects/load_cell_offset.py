@@ -5,8 +5,9 @@ from __future__ import annotations
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
+from bayesdamper.physics.effects.signals import FORCE_READS_STATE
 
-__all__ = ["EFFECT", "force"]
+__all__ = ["EFFECT", "force", "force_reads"]
 
 EFFECT = Effect(
     name="load_cell_offset",
@@ -19,3 +20,9 @@ EFFECT = Effect(
 def force(sig, z, p):
     """F_0 [N]."""
     return p[0]
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """A constant: no signal."""
+    return FORCE_READS_STATE

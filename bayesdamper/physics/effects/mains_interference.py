@@ -12,9 +12,9 @@ import math
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import T
+from bayesdamper.physics.effects.signals import FORCE_READS_STATE, T
 
-__all__ = ["EFFECT", "force"]
+__all__ = ["EFFECT", "force", "force_reads"]
 
 EFFECT = Effect(
     name="mains_interference",
@@ -32,3 +32,9 @@ def force(sig, z, p):
     """a_c cos(2π f_m t) + a_s sin(2π f_m t) [N]."""
     ph = 2.0 * math.pi * p[2] * sig[T]
     return p[0] * math.cos(ph) + p[1] * math.sin(ph)
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """t alone."""
+    return FORCE_READS_STATE

@@ -12,9 +12,9 @@ from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
 from bayesdamper.physics.effects.friction import friction_force_scalar
-from bayesdamper.physics.effects.signals import VP
+from bayesdamper.physics.effects.signals import FORCE_READS_MOTION, VP
 
-__all__ = ["EFFECT", "force"]
+__all__ = ["EFFECT", "force", "force_reads"]
 
 EFFECT = Effect(
     name="seal_friction",
@@ -31,3 +31,9 @@ EFFECT = Effect(
 def force(sig, z, p):
     """Stribeck and viscous friction at the piston velocity [N]."""
     return friction_force_scalar(sig[VP], 0.0, p[2], p[0], p[1])
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """The piston velocity."""
+    return FORCE_READS_MOTION

@@ -21,7 +21,8 @@ signals they need by these indices (SI units):
 
 Hook protocol (every hook is optional; ``z`` is the effect's slice of the state vector, ``p`` its
 parameters in the order of its :class:`~bayesdamper.physics.effects.base.Effect`, ``dz`` the slice of
-the state derivative it must fill):
+the state derivative it must fill; hooks return scalars or tuples of scalars, never an array: the kernel's
+callers of the hooks count no references, :data:`~bayesdamper.physics.composed_template.NO_REFCOUNT`):
 
 * ``displacement(sig, z, p, dz) -> (y, v)``: the displacement path (from sig[YP], sig[VP]);
 * ``compliance(p) -> c``: a series compliance [m/N] (the kernel adds them);
@@ -35,6 +36,11 @@ the state derivative it must fill):
 * ``force_acts(p) -> bool``: whether ``force`` adds anything for these parameters (default: it does; an
   effect that acts elsewhere for some structure values says so, and the kernel then computes the force at
   the output times from Δp alone instead of evaluating every signal there);
+* ``force_reads(p) -> level``: which signals ``force`` reads for these parameters (default: any,
+  :data:`FORCE_READS_ANY`): :data:`FORCE_READS_STATE` t (``T``) and Δp (``DP``) besides its states,
+  :data:`FORCE_READS_MOTION` also the motion (``YA``, ``VA``, ``AA``, ``YP``, ``VP``: the input and the
+  displacement path). At the output times the
+  kernel then sets only those from the dense-output states instead of evaluating the right-hand side there;
 * ``initial(sig, p, z)``: the states at the start (sig holds t0, y_A, the velocity before t0 in VA and
   VP, Δp0 and Q_O(Δp0));
 * ``state_atol(p, atol_pa, out)``: absolute tolerances of the states (else the module's ``STATE_ATOL``).
@@ -42,11 +48,13 @@ the state derivative it must fill):
 
 from __future__ import annotations
 
-__all__ = ["AA", "AV", "BL", "DDP", "DP", "DP1", "DP2", "N_SIGNALS", "P1", "P2", "PR", "PRESSURE_FLOOR_PA", "Q", "QO",
-           "T", "V1", "V2", "VA", "VP", "YA", "YP"]
+__all__ = ["AA", "AV", "BL", "DDP", "DP", "DP1", "DP2", "FORCE_READS_ANY", "FORCE_READS_MOTION", "FORCE_READS_STATE",
+           "N_SIGNALS", "P1", "P2", "PR", "PRESSURE_FLOOR_PA", "Q", "QO", "T", "V1", "V2", "VA", "VP", "YA", "YP"]
 
 T, YA, VA, YP, VP, DP, DDP, QO, Q, P1, P2, DP1, DP2, V1, V2, AA, PR, AV, BL = range(19)
 #: Length of the signal vector.
 N_SIGNALS = 19
+#: Levels of the ``force_reads`` hook: t, Δp and the effect's states; also the motion's signals; any signal.
+FORCE_READS_STATE, FORCE_READS_MOTION, FORCE_READS_ANY = 1, 2, 3
 #: Absolute pressure below which the bulk modulus is evaluated at this floor [Pa] (about vapour pressure).
 PRESSURE_FLOOR_PA = 1.0e4

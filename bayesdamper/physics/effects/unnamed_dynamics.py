@@ -23,10 +23,19 @@ import math
 from numba import njit
 
 from bayesdamper.physics.effects.base import Effect, EffectParam
-from bayesdamper.physics.effects.signals import DP, QO, VP, YP, Q
+from bayesdamper.physics.effects.signals import (
+    DP,
+    FORCE_READS_ANY,
+    FORCE_READS_MOTION,
+    FORCE_READS_STATE,
+    QO,
+    VP,
+    YP,
+    Q,
+)
 
 __all__ = ["DRIVERS", "EFFECT", "LAWS", "MODES", "PLACEMENTS", "STATES", "derivatives", "flow", "force", "force_acts",
-           "initial", "state_atol"]
+           "force_reads", "initial", "state_atol"]
 
 #: Codes of the structure parameters (names used in reports).
 DRIVERS = ("dp", "q", "y", "v")
@@ -91,6 +100,16 @@ def force(sig, z, p):
 def force_acts(p):
     """Only at placement 0."""
     return int(p[6]) == 0
+
+
+@njit(cache=True, error_model="numpy")
+def force_reads(p):
+    """The low-pass output g w reads the state alone; the transient one its driver besides: Δp, the motion (y_P,
+    v_P) or the orifice flow (any signal)."""
+    d = int(p[4])
+    if int(p[7]) == 0 or d == 0:
+        return FORCE_READS_STATE
+    return FORCE_READS_MOTION if d >= 2 else FORCE_READS_ANY
 
 
 @njit(cache=True, error_model="numpy")
