@@ -48,8 +48,8 @@ from bayesdamper.physics.single_state import solve_eq7 as _solve_eq7
 #: Compile options of the functions called at every stage and output time that only read, write and slice arrays
 #: their caller owns (the right-hand side, the force, the motion's signals): no reference counting (numba's
 #: ``_nrt`` option, where this numba has it). Each slice an effect's hook is handed would otherwise take an atomic
-#: increment and decrement of its array's count, which on rig-A's final model cost 40 % of a solve; these functions
-#: allocate nothing and hand back only scalars, so no count is ever needed. Effect hooks must return scalars.
+#: increment and decrement of its array's count, more than most hooks' own arithmetic; these functions allocate
+#: nothing and hand back only scalars, so no count is ever needed. Effect hooks must return scalars.
 NO_REFCOUNT = {"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}
 #: Default largest number of accepted steps of one call (the ``max_steps`` argument).
 MAX_STEPS = 100_000
