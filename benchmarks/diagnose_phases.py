@@ -15,7 +15,8 @@ and after and the findings (parameters on a bound, speeds that got worse).
     python benchmarks/diagnose_phases.py [DATA ...] [--out /tmp/bench-phases] [--workers 2] [--cold-kernels]
                                          [-- EXTRA DIAGNOSE ARGS]
 
-DATA defaults to data/rig-A; give further folders to time them too.
+DATA defaults to data/rig-A; give further folders to time them too (``benchmarks/triangular_sets.py`` writes
+independent 33-transient sets at 200 Hz, 500 Hz and 1 kHz).
 """
 
 from __future__ import annotations
