@@ -207,7 +207,7 @@ def kernel_source() -> str:
 
     lines += guarded("force", force_mode)
     lines += ["    return mode", "", "",
-              "@njit(cache=True, error_model=\"numpy\", inline=\"always\", **NO_REFCOUNT)",
+              "@njit(cache=True, error_model=\"numpy\", **NO_REFCOUNT)",
               "def _motion_at(t, s, scratch, sig, prm, base, ya, va, aa, lay):",
               "    sig[T] = t",
               "    sig[YA] = ya",
