@@ -206,34 +206,28 @@ def kernel_source() -> str:
         return [f"if {a}.force_acts({p(i)}):"] + ["    " + b for b in body] if has(mod, "force_acts") else body
 
     lines += guarded("force", force_mode)
+    motion = ["    sig[T] = t", "    sig[YA] = ya", "    sig[VA] = va", "    sig[AA] = aa", "    sig[YP] = ya",
+              "    sig[VP] = va"]
+
+    def displacement_path(dz):
+        """The input through the displacement-path effects into sig[YP], sig[VP]; their derivatives into ``dz``."""
+        return guarded("displacement", lambda i, a, n: [
+            f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, dz)})", "sig[YP] = y", "sig[VP] = v"])
+
     lines += ["    return mode", "", "",
               "@njit(cache=True, error_model=\"numpy\", **NO_REFCOUNT)",
-              "def _motion_at(t, s, scratch, sig, prm, base, ya, va, aa, lay):",
-              "    sig[T] = t",
-              "    sig[YA] = ya",
-              "    sig[VA] = va",
-              "    sig[AA] = aa",
-              "    sig[YP] = ya",
-              "    sig[VP] = va"]
-    lines += guarded("displacement", lambda i, a, n: [
-        f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'scratch')})", "sig[YP] = y", "sig[VP] = v"])
+              "def _motion_at(t, s, scratch, sig, prm, base, ya, va, aa, lay):", *motion]
+    lines += displacement_path("scratch")
     lines += ["    sig[DP] = s[0]",
               "    sig[YP] = sig[YP] - base[B_COMP] * base[B_AREA] * s[0]", "", "",
               "@njit(cache=True, error_model=\"numpy\", **NO_REFCOUNT)",
-              "def _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay):",
-              "    sig[T] = t",
-              "    sig[YA] = ya",
-              "    sig[VA] = va",
-              "    sig[AA] = aa",
-              "    sig[YP] = ya",
-              "    sig[VP] = va",
+              "def _rhs_at(t, s, ds, sig, prm, base, ya, va, aa, lay):", *motion,
               "    sig[PR] = base[B_PR]",
               "    sig[AV] = base[B_ALPHA]",
               "    sig[BL] = base[B_B0]",
               "    for i in range(ds.shape[0]):",
               "        ds[i] = 0.0"]
-    lines += guarded("displacement", lambda i, a, n: [
-        f"y, v = {a}.displacement(sig, {z(i, n)}, {p(i)}, {z(i, n, 'ds')})", "sig[YP] = y", "sig[VP] = v"])
+    lines += displacement_path("ds")
     lines += ["    dp = s[0]",
               "    sig[DP] = dp",
               "    area = base[B_AREA]",
