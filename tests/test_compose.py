@@ -276,3 +276,38 @@ print(s1.alloc - s0.alloc, s1.free - s0.free, s1.mi_alloc - s0.mi_alloc, s1.mi_f
                          env={**os.environ, "NUMBA_NRT_STATS": "1"})
     alloc, free, mi_alloc, mi_free = map(int, out.stdout.split())
     assert alloc > 0 and alloc == free and mi_alloc == mi_free, out.stdout
+
+
+def test_kernels_are_compiled_once_whatever_the_callers_arrays():
+    """numba types writable and read-only arrays as different arguments, and NumPy unpickles arrays writable: a
+    window sent to a worker process must not make the composed kernel compile a second time. Solves with the input's
+    arrays read-only (as built), writable (as NumPy unpickles a plain array) and pickled through a frozen container
+    all use one compiled signature of each entry point."""
+    import dataclasses
+    import pickle
+
+    mod = compose_mod.kernel()
+    drive = PiecewisePolynomial.from_knots(np.array([0.0, 1.0, 3.0]), np.array([0.0, 0.0, 2e-3]))
+    writable = dataclasses.replace(drive)  # then made writable in place, as an unpickled plain array is
+    for name in ("breaks", "coefs", "restart"):
+        object.__setattr__(writable, name, np.array(getattr(writable, name)))
+    assert writable.breaks.flags.writeable
+    unpickled = pickle.loads(pickle.dumps(drive))
+    assert not (unpickled.breaks.flags.writeable or unpickled.coefs.flags.writeable
+                or unpickled.restart.flags.writeable)
+    t_ro = 1.0 + np.arange(1, 200) / 100.0
+    t_ro.flags.writeable = False
+    forces = []
+    for eff in ({}, {"actuator_lag": {"time_constant_s": 0.02}}):
+        for d, t in ((drive, t_ro), (writable, np.array(t_ro)), (unpickled, t_ro)):
+            c = compose(eff)
+            f, status = solve_composed(c, t, c.transform_input(d), 1.0, 0.0, 0.0, RIG_A_DAMPER,
+                                       PAPER_FLOW.as_array(), 40.0, 3e5, 1e-6, 1.0)
+            assert status == STATUS_OK
+            forces.append(f)
+    assert len(mod.solve_force_only.signatures) == 1, mod.solve_force_only.signatures
+    assert len(mod.solve_composed.signatures) == 1, mod.solve_composed.signatures
+    for f in forces[1:3]:
+        np.testing.assert_array_equal(f, forces[0])
+    for f in forces[4:]:
+        np.testing.assert_array_equal(f, forces[3])

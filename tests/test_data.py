@@ -409,3 +409,24 @@ _cell = st.one_of(
 def test_header_plus_arbitrary_rows_only_raise_data_error(fuzz_file, rows):
     body = "\n".join(",".join(r) for r in rows)
     _only_data_error(fuzz_file, f"{HEADER}\n{body}\n".encode())
+
+
+def test_frozen_containers_stay_read_only_through_pickling(make_dataset):
+    """Windows and records sent to worker processes keep their arrays read-only (one numba type for the kernels)
+    and their values."""
+    import pickle
+
+    from bayesdamper.io.segmentation import segment_record
+
+    ds = load_dataset(make_dataset())
+    rec = ds.records[0]
+    back = pickle.loads(pickle.dumps(rec))
+    for name in ("time", "displacement", "force"):
+        assert not getattr(back, name).flags.writeable
+        np.testing.assert_array_equal(getattr(back, name), getattr(rec, name))
+    seg = segment_record(rec, ds.damper)
+    win = pickle.loads(pickle.dumps(seg.transients[0]))
+    for arr, orig in ((win.time, seg.transients[0].time), (win.force, seg.transients[0].force),
+                      (win.drive.coefs, seg.transients[0].drive.coefs)):
+        assert not arr.flags.writeable
+        np.testing.assert_array_equal(arr, orig)

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bayesdamper.core.frozen import ReadOnlyArrays
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.inference.likelihood import (
     AR1,
@@ -159,7 +160,7 @@ def flow_scales(time: np.ndarray, force: np.ndarray, drive, area: float) -> np.n
 
 
 @dataclass(frozen=True)
-class JointProblem:
+class JointProblem(ReadOnlyArrays):
     """One window with its pre-step samples, bound to the damper, the flow prior and a noise model.
 
     Attributes

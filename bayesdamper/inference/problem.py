@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.frozen import ReadOnlyArrays
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.physics.compose import ComposedEffects, solve_composed
 from bayesdamper.physics.excitation import PiecewisePolynomial
@@ -46,7 +47,7 @@ def _local(drive: PiecewisePolynomial, t_step: float, time: np.ndarray, segment_
 
 
 @dataclass(frozen=True)
-class WindowProblem:
+class WindowProblem(ReadOnlyArrays):
     """One window bound to the damper and its flow coefficients: (α_V, p_R) -> force by eq. (7).
 
     Attributes
@@ -124,7 +125,7 @@ FLOW_BOX = (1e-3, 100.0)
 
 
 @dataclass(frozen=True, eq=False)
-class EffectsProblem:
+class EffectsProblem(ReadOnlyArrays):
     """One window bound to the damper and the record's whole input, for models with effects.
 
     ``simulate_force(alpha_v, p_r, effects)`` solves eq. (7) with any effects (the composed kernel) from the

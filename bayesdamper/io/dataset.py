@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.core.frozen import ReadOnlyArrays
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.io.damper_file import DAMPER_FILE, read_damper_toml
 
@@ -65,7 +66,7 @@ def _one_line(text: object) -> str:
 
 
 @dataclass(frozen=True, eq=False)
-class TestRecord:
+class TestRecord(ReadOnlyArrays):
     """One triangular-displacement test, validated.
 
     Attributes

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bayesdamper.core.errors import DataError
+from bayesdamper.core.frozen import ReadOnlyArrays
 from bayesdamper.physics.excitation import PiecewisePolynomial
 
 __all__ = ["Window", "cycle_windows", "WINDOW_TARGET_S"]
@@ -61,7 +62,7 @@ def _readonly(a) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
-class Window:
+class Window(ReadOnlyArrays):
     """A window of a record with its initial state: the data of one eq. (9) residual.
 
     Attributes

@@ -43,6 +43,7 @@ import numba
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.frozen import readonly
 from bayesdamper.physics import composed_template
 from bayesdamper.physics.effects import EFFECT_MODULES, complete_effects
 from bayesdamper.physics.effects import signals as _signals
@@ -395,20 +396,21 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
                      damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
     if not (np.all(np.isfinite(base)) and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
         return np.full(np.shape(t_out), np.nan), 5
-    t_out = np.ascontiguousarray(t_out, dtype=float)
+    # the kernels' inputs are read-only whatever the caller's arrays are: one numba type each, one compilation
+    t_out, base, values = readonly(t_out), readonly(base), readonly(composed.values)
+    lay = readonly(composed.layout, np.int64)
     if composed.force_only and t_out.size and t0 <= t_out[0] and t_out[-1] <= drive.end:
         w = drive.window(t0, float(max(t_out[-1], t0 + 1e-9)))  # eq. (7) starts at the input's first break
-        force, status = mod.solve_force_only(t_out, w.breaks, w.coefs, w.restart, float(dp0), float(v_prev), base,
-                                             np.ascontiguousarray(composed.values), float(rtol), float(atol),
-                                             bool(from_force), composed.layout)
+        force, status = mod.solve_force_only(t_out, readonly(w.breaks), readonly(w.coefs),
+                                             readonly(w.restart, bool), float(dp0), float(v_prev), base, values,
+                                             float(rtol), float(atol), bool(from_force), lay)
         return (force, status, None) if record else (force, status)
     cap = int(composed_template.MAX_STEPS if max_steps is None else max_steps)
     rec = np.empty(min(cap, RECORD_PER_SAMPLE * t_out.size + RECORD_BASE) if record else 0)
-    args = (t_out, drive.breaks, drive.coefs, drive.restart, float(t0), float(dp0), float(v_prev), base,
-            np.ascontiguousarray(composed.values), float(rtol), float(atol), bool(from_force), composed.layout, cap,
-            rec)
+    args = (t_out, readonly(drive.breaks), readonly(drive.coefs), readonly(drive.restart, bool), float(t0),
+            float(dp0), float(v_prev), base, values, float(rtol), float(atol), bool(from_force), lay, cap, rec)
     if replay is not None and replay.size:
-        force, status, n = mod.solve_composed(*args, np.ascontiguousarray(replay, dtype=float))
+        force, status, n = mod.solve_composed(*args, readonly(replay))
         if status != composed_template.STATUS_REPLAY:
             return (force, status, replay[:n] if n == replay.size else None) if record else (force, status)
     force, status, n = mod.solve_composed(*args, _NO_STEPS)
@@ -420,16 +422,19 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
 #: Room for the recorded steps of a solve (``record``): this many per output sample and this many more; a solve that
 #: takes more (a record that overflows) returns none and is not replayed.
 RECORD_PER_SAMPLE, RECORD_BASE = 4, 1000
-_NO_STEPS = np.empty(0)
+_NO_STEPS = readonly(np.empty(0))
 
 
 def warm_up() -> None:
-    """Compile (or load) the composed kernel in this process with a tiny solve.
+    """Compile (or load) the composed kernel's two entry points in this process with tiny solves: eq. (7) with
+    force-only effects, and the composed ODE.
 
     Call it before forking worker processes: they inherit the compiled code instead of each compiling it.
     """
     from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
 
     drive = PiecewisePolynomial.from_knots(np.array([0.0, 1.0]), np.array([0.0, 1e-3]))
-    solve_composed(compose({}), np.array([0.5]), drive, 0.0, 0.0, 0.0, RIG_A_DAMPER, PAPER_FLOW.as_array(), 40.0,
-                   3.0e5, 1e-6, 1.0)
+    with_ode = next(c for c in (compose({n: None}) for n in EFFECT_MODULES) if not c.force_only)
+    for composed in (compose({}), with_ode):  # eq. (7)'s force-only path, and the composed ODE's
+        solve_composed(composed, np.array([0.5]), drive, 0.0, 0.0, 0.0, RIG_A_DAMPER, PAPER_FLOW.as_array(),
+                       40.0, 3.0e5, 1e-6, 1.0)

@@ -167,8 +167,9 @@ def solve_force_only(t_out, brk, coef, restart, dp0, v_prev, base, prm, rtol, at
             return out, STATUS_NONFINITE
         dp0 -= (_force(sig, x, prm, base, lay) - f_target) / base[B_AREA]
     fl = base[B_FL0:B_FL3 + 1].copy()
+    # eq. (6)'s bulk modulus as an int64, not a literal 0: the signature Python's calls compiled (and cached)
     dp, status, _ = _solve_eq7(t_out, brk, coef, restart, dp0, base[B_AREA], base[B_V01], base[B_V02], base[B_B0], fl,
-                               base[B_ALPHA], base[B_PR], 0, 0.0, rtol, atol)
+                               base[B_ALPHA], base[B_PR], np.int64(0), 0.0, rtol, atol)
     if status != STATUS_OK:
         return out, status
     seg[1] = _next_restart(restart, 0)

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
+from bayesdamper.core.frozen import ReadOnlyArrays
 
 __all__ = ["PiecewiseLinear", "PiecewisePolynomial", "as_drive"]
 
@@ -28,7 +29,7 @@ def _frozen_array(x: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: array fields; compare knots with np.array_equal
-class PiecewiseLinear:
+class PiecewiseLinear(ReadOnlyArrays):
     """Piecewise-linear piston displacement through knots.
 
     Attributes
@@ -165,7 +166,7 @@ class PiecewiseLinear:
 
 
 @dataclass(frozen=True, eq=False)
-class PiecewisePolynomial:
+class PiecewisePolynomial(ReadOnlyArrays):
     """Piston displacement as polynomial pieces: the input of every kernel.
 
     On piece k, ``breaks[k] <= t <= breaks[k + 1]``, the displacement is
