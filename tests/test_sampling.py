@@ -475,3 +475,32 @@ def test_ridge_crest_and_widths_survive_a_solvers_noise():
     true_w = 0.005 * np.hypot(1.0, slope) ** -1 / np.abs(n @ across)
     ratio = move.width[inside] / INDEPENDENCE_INFLATION / true_w  # move.a is sorted, as pts
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
+
+
+def test_tau_is_emcees_integrated_time():
+    """The convergence checks' τ (every walker and parameter in one real FFT) is emcee's ``integrated_time`` with
+    the same window constant: AR(1) chains of 1 to 3001 steps, 8 or 16 walkers; a parameter whose walkers never
+    moved is infinite. Agreement to 1e-12 relative, and 1e-12 absolute for a τ of zero (two steps): the same sums,
+    FFTs of other lengths, so rounding only."""
+    import emcee
+
+    from bayesdamper.inference.sampling import TAU_WINDOW_C, _tau
+
+    rng = np.random.default_rng(5)
+    for n_t in (1, 2, 3, 64, 251, 3001):
+        for n_w, n_d, phi in ((16, 6, 0.95), (8, 3, 0.5)):
+            e = rng.standard_normal((n_t, n_w, n_d))
+            x = np.zeros_like(e)
+            for t in range(n_t):
+                x[t] = (phi * x[t - 1] if t else 0.0) + e[t]
+            if n_t > 1:
+                x[:, :, 1] = 0.25  # frozen walkers
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ref = emcee.autocorr.integrated_time(x, c=TAU_WINDOW_C, tol=0, quiet=True)
+            ref = np.where(np.isfinite(ref), ref, np.inf)
+            got = _tau(x)
+            assert np.array_equal(np.isinf(got), np.isinf(ref)), (n_t, got, ref)
+            fin = np.isfinite(ref)
+            np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=1e-12)
+            if n_t > 1:
+                assert np.isinf(got[1])
