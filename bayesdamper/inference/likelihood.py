@@ -104,7 +104,7 @@ def _log_posterior_batch(thetas, lower, upper, noise_code, t_out, brk, coef, res
             out[k] = -np.inf
             continue
         dp, status, _ = solve_eq7(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4,
-                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
+                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), np.int64(0), 0.0, rtol, atol)
         if status != 0:
             out[k] = -np.inf
             continue
@@ -305,7 +305,7 @@ def _joint_batch(thetas, lower, upper, noise_code, t_out, brk, coef, restart, ar
             flow4[j] = thetas[k, 3 + j]
         dp0 = thetas[k, 2]
         dp, status, _ = solve_eq7(t_out, brk, coef, restart, dp0, area, v01, v02, b0, flow4,
-                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), 0, 0.0, rtol, atol)
+                                  np.exp(thetas[k, 0]), np.exp(thetas[k, 1]), np.int64(0), 0.0, rtol, atol)
         if status != 0:
             out[k] = -np.inf
             continue

@@ -37,6 +37,7 @@ import numpy as np
 from numba import njit
 
 from bayesdamper.core.errors import BayesDamperError, SettingsError
+from bayesdamper.core.frozen import readonly
 from bayesdamper.core.params import DamperConstants, DynamicParameters, FlowCoefficients
 from bayesdamper.physics.compressibility import bulk_modulus_and_slope, bulk_modulus_scalar
 from bayesdamper.physics.excitation import PiecewiseLinear, PiecewisePolynomial, as_drive
@@ -426,7 +427,7 @@ def _prepare(t_out, excitation: PiecewiseLinear | PiecewisePolynomial,
     if t_out[0] < t0:
         raise SettingsError(f"output times start at {t_out[0]!r} s, before the transient start t0={t0!r} s")
     t1 = float(t_out[-1]) if t_out[-1] > t0 else t0 + 1.0
-    return t_out, as_drive(excitation).window(t0, t1)
+    return readonly(t_out), as_drive(excitation).window(t0, t1)  # read-only, as a window's: one kernel signature
 
 
 def simulate_single_state(
