@@ -9,7 +9,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ReadOnlyArrays", "readonly"]
+__all__ = ["ReadOnlyArrays", "frozen_copy", "readonly"]
+
+
+def frozen_copy(a, dtype=np.float64) -> np.ndarray:
+    """A read-only C-contiguous copy of ``a`` as ``dtype``: the data a frozen container stores, which no caller's
+    array can change afterwards."""
+    a = np.array(a, dtype=dtype, order="C")
+    a.flags.writeable = False
+    return a
 
 
 def readonly(a, dtype=np.float64) -> np.ndarray:

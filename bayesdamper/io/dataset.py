@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from bayesdamper.core.errors import DataError, SettingsError
-from bayesdamper.core.frozen import ReadOnlyArrays
+from bayesdamper.core.frozen import ReadOnlyArrays, frozen_copy
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.io.damper_file import DAMPER_FILE, read_damper_toml
 
@@ -54,11 +54,6 @@ MAX_DISPLACEMENT = 0.5
 
 #: Largest plausible |force| of a damper test [N].
 MAX_FORCE = 1e7
-
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.ascontiguousarray(a, dtype=float)
-    a.flags.writeable = False
-    return a
 
 
 def _one_line(text: object) -> str:
@@ -356,9 +351,9 @@ def load_record(path: str | Path, *, tmax: float | None = 3.0) -> TestRecord:
     return TestRecord(
         name=path.stem,
         path=path,
-        time=_readonly(time),
-        displacement=_readonly(y),
-        force=_readonly(force),
+        time=frozen_copy(time),
+        displacement=frozen_copy(y),
+        force=frozen_copy(force),
         sha256=sha,
         velocity=_read_velocity(path, lines, time.size),
         temperature=_read_optional(path, lines, time.size, TEMPERATURE_COLUMN),
@@ -392,8 +387,8 @@ def load_history(path: str | Path) -> TestRecord:
     data = _numeric(path, lines, tuple(names.index(c) for c in need), need)
     time, y = data[:, 0], data[:, 1]
     _check_columns(path, lines, time, y, np.zeros_like(time), None)
-    return TestRecord(name=path.stem, path=path, time=_readonly(time), displacement=_readonly(y),
-                      force=_readonly(np.full(time.size, np.nan)), sha256=sha,
+    return TestRecord(name=path.stem, path=path, time=frozen_copy(time), displacement=frozen_copy(y),
+                      force=frozen_copy(np.full(time.size, np.nan)), sha256=sha,
                       velocity=_read_velocity(path, lines, time.size),
                       temperature=_read_optional(path, lines, time.size, TEMPERATURE_COLUMN))
 
@@ -414,7 +409,7 @@ def _read_optional(path: Path, lines: list[str], n: int, column: str) -> np.ndar
         raise DataError(f"{path}: column {column} holds something that is not a number") from None
     if v.size != n or not np.all(np.isfinite(v)):
         raise DataError(f"{path}: column {column} must hold a finite number in every row")
-    return _readonly(v)
+    return frozen_copy(v)
 
 
 def _csv_files(folder: Path) -> list[Path]:

@@ -39,9 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesdamper.core.errors import DataError, SettingsError
+from bayesdamper.core.frozen import frozen_copy
 from bayesdamper.core.params import DamperConstants
 from bayesdamper.io.dataset import Dataset, TestRecord
-from bayesdamper.io.segments import Plateau, SegmentedRecord, StepKind, VelocityStep, _readonly
+from bayesdamper.io.segments import Plateau, SegmentedRecord, StepKind, VelocityStep
 from bayesdamper.io.windows import Window
 from bayesdamper.physics.excitation import PiecewisePolynomial
 
@@ -336,13 +337,13 @@ def segment_record(
                 direction=step.direction,
                 velocity=abs(step.velocity_after),
                 t_step=step.time,
-                time=_readonly(t[win]),
-                displacement=_readonly(y[win]),
-                force=_readonly(force[win]),
+                time=frozen_copy(t[win]),
+                displacement=frozen_copy(y[win]),
+                force=frozen_copy(force[win]),
                 dp0=step.force / area,
                 drive=drive,
-                pre_time=_readonly(pre_t),
-                pre_force=_readonly(pre_f),
+                pre_time=frozen_copy(pre_t),
+                pre_force=frozen_copy(pre_f),
             )
         )
 
@@ -382,8 +383,8 @@ def segment_record(
         steps=tuple(steps),
         transients=tuple(transients),
         plateaus=tuple(plateaus),
-        knot_times=_readonly(knot_t),
-        knot_displacements=_readonly(knot_y),
+        knot_times=frozen_copy(knot_t),
+        knot_displacements=frozen_copy(knot_y),
     )
 
 

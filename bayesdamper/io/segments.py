@@ -17,11 +17,6 @@ from bayesdamper.io.windows import Window
 StepKind = Literal["initial", "reversal"]
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.flags.writeable = False
-    return a
-
 
 @dataclass(frozen=True)
 class VelocityStep:

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bayesdamper.core.errors import DataError
-from bayesdamper.core.frozen import ReadOnlyArrays
+from bayesdamper.core.frozen import ReadOnlyArrays, frozen_copy
 from bayesdamper.physics.excitation import PiecewisePolynomial
 
 __all__ = ["Window", "cycle_windows", "WINDOW_TARGET_S"]
@@ -54,11 +54,6 @@ WINDOW_RULE = (f"whole cycles of the record's own period: the fewest that last a
                "from the start of the motion (or the record's start in motion), the last window running to the "
                "record's end")
 
-
-def _readonly(a) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.flags.writeable = False
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,8 +110,8 @@ class Window(ReadOnlyArrays):
     force: np.ndarray
     dp0: float
     drive: PiecewisePolynomial
-    pre_time: np.ndarray = field(default_factory=lambda: _readonly([]))
-    pre_force: np.ndarray = field(default_factory=lambda: _readonly([]))
+    pre_time: np.ndarray = field(default_factory=lambda: frozen_copy([]))
+    pre_force: np.ndarray = field(default_factory=lambda: frozen_copy([]))
     info: dict = field(default_factory=dict)
     drive_replicates: tuple = ()
 
@@ -264,7 +259,7 @@ def cycle_windows(record, kind: str, details: dict, drive: PiecewisePolynomial, 
         windows.append(Window(
             id=f"{record.name}_w{k}", test=record.name, index=k, kind="cycles", direction=0,
             velocity=float(np.quantile(vw, 0.99)) if vw.size else 0.0, t_step=t_step,
-            time=_readonly(tw), displacement=_readonly(yw), force=_readonly(fw), dp0=dp0, drive=drive,
-            pre_time=_readonly(t[pre_idx]), pre_force=_readonly(f[pre_idx]), info=info,
+            time=frozen_copy(tw), displacement=frozen_copy(yw), force=frozen_copy(fw), dp0=dp0, drive=drive,
+            pre_time=frozen_copy(t[pre_idx]), pre_force=frozen_copy(f[pre_idx]), info=info,
             drive_replicates=tuple(replicates)))
     return windows

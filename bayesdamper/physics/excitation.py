@@ -17,15 +17,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.core.frozen import ReadOnlyArrays
+from bayesdamper.core.frozen import ReadOnlyArrays, frozen_copy
 
 __all__ = ["PiecewiseLinear", "PiecewisePolynomial", "as_drive"]
 
-
-def _frozen_array(x: np.ndarray) -> np.ndarray:
-    x = np.array(x, dtype=float)
-    x.setflags(write=False)
-    return x
 
 
 @dataclass(frozen=True, eq=False)  # eq=False: array fields; compare knots with np.array_equal
@@ -50,8 +45,8 @@ class PiecewiseLinear(ReadOnlyArrays):
     knot_displacements: np.ndarray
 
     def __post_init__(self) -> None:
-        t = _frozen_array(self.knot_times)
-        y = _frozen_array(self.knot_displacements)
+        t = frozen_copy(self.knot_times)
+        y = frozen_copy(self.knot_displacements)
         if t.ndim != 1 or y.ndim != 1 or t.shape != y.shape:
             raise SettingsError(
                 f"excitation knots must be two 1-D arrays of equal length, got shapes {t.shape} and {y.shape}"
@@ -196,7 +191,7 @@ class PiecewisePolynomial(ReadOnlyArrays):
     restart: np.ndarray
 
     def __post_init__(self) -> None:
-        b = _frozen_array(self.breaks)
+        b = frozen_copy(self.breaks)
         c = np.array(self.coefs, dtype=float, order="C")
         r = np.array(self.restart, dtype=bool)
         if b.ndim != 1 or b.size < 2 or c.ndim != 2 or c.shape[0] != b.size - 1 or c.shape[1] < 2:
