@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bayesdamper.core.errors import SettingsError
-from bayesdamper.core.frozen import ReadOnlyArrays
+from bayesdamper.core.frozen import ReadOnlyArrays, frozen_copy
 from bayesdamper.core.params import DamperConstants, FlowCoefficients
 from bayesdamper.physics.compose import ComposedEffects, solve_composed
 from bayesdamper.physics.excitation import PiecewisePolynomial
@@ -32,9 +32,7 @@ LIKELIHOOD_ATOL = 1.0  # [Pa]: far below 1 N / A_P force resolution
 def freeze_arrays(obj, names: tuple[str, ...]) -> None:
     """Replace the array attributes ``names`` of a frozen dataclass by read-only float64 copies."""
     for name in names:
-        arr = np.ascontiguousarray(getattr(obj, name), dtype=np.float64).copy()
-        arr.flags.writeable = False
-        object.__setattr__(obj, name, arr)
+        object.__setattr__(obj, name, frozen_copy(getattr(obj, name)))
 
 
 def _local(drive: PiecewisePolynomial, t_step: float, time: np.ndarray, segment_id: str) -> PiecewisePolynomial:
