@@ -3,8 +3,8 @@
 Every set is made by the confusion table's reference generator (``tests/test_confusion.py``: the two-state damper of
 ``tests/reference_effects.py``, written apart from the effect code) at rig-A's eleven speeds (0.5-1.5 mm/s), 1.25
 triangle cycles per test, with at most one injected rig effect. The sets span the rates and sensors the toolkit
-serves: 200 Hz records with white force noise; 1 kHz and 500 Hz records with noise and ADC steps on both channels
-and an unzeroed load cell (an offset in the data and in the true force).
+serves: 200 Hz records with white force noise; 1 kHz, 500 Hz and 100 Hz records with noise and ADC steps on both
+channels and an unzeroed load cell (an offset in the data and in the true force).
 
     python benchmarks/triangular_sets.py [OUT] [--only NAME ...]
     python benchmarks/diagnose_phases.py OUT/control-200Hz OUT/friction-1kHz ...
@@ -26,7 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import test_confusion as tc  # noqa: E402
 
-SPEEDS = tuple(float(v) for v in np.round(np.linspace(0.5e-3, 1.5e-3, 11), 6))
+SPEEDS = tc.ELEVEN_SPEEDS
 CLEAN = tc.Channels(speeds=SPEEDS, force_sd=12.0)
 ADC_200 = tc.Channels(speeds=SPEEDS, force_sd=12.0, displacement_sd=0.3e-6, force_step=2.0,
                       displacement_step=0.5e-6, offset=40.0)
@@ -39,6 +39,8 @@ def _khz(offset: float, rate: float = 1000.0, force_sd: float = 10.0) -> tc.Chan
 
 VALVE = {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5, "cracking_pressure_Pa": 1.5e4,
                           "span_Pa": 3.0e7}}
+VALVE_100 = {"poppet_valve": {"natural_frequency_Hz": 2.2, "damping_ratio": 0.35, "cracking_pressure_Pa": 2.0e4,
+                              "span_Pa": 3.0e7}}
 FRICTION = {"seal_friction": {"stribeck_N": 200.0, "stribeck_velocity_m_s": 5.0e-3, "viscous_Ns_per_m": 10.0}}
 MOUNT = {"series_compliance": {"stiffness_N_per_m": 2.0e7}}
 #: name -> (two-state base, injected effects, channels, seed)
@@ -51,6 +53,10 @@ SETS = {
     "control-1kHz": (tc.two_state_base(1.4, "gas-b"), {}, _khz(-150.0), 303),
     "valve-1kHz": (tc.two_state_base(1.25, "gas-b"), VALVE, _khz(120.0), 404),
     "mount-500Hz": (tc.two_state_base(1.3, "gas-a"), MOUNT, _khz(90.0, 500.0, 12.0), 404),
+    "control-100Hz": (tc.two_state_base(1.15, "gas-a"), {}, tc.HUNDRED_HZ, 505),
+    "valve-100Hz": (tc.two_state_base(1.35, "gas-a"), VALVE_100, tc.HUNDRED_HZ, 506),
+    "mount-100Hz": (tc.two_state_base(1.2, "gas-b"), {"series_compliance": {"stiffness_N_per_m": 1.5e7}},
+                    tc.HUNDRED_HZ, 507),
 }
 
 

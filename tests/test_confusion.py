@@ -22,7 +22,7 @@ refilled), runs with ``make test-confusion``: two controls (κ 1.1 and 1.4 at tw
 nothing or the library's ``two_state`` only, and a compliant mount and rig-A's check valve on it, which must be
 named (with ``two_state`` at most besides) and end within 2x of the true model's pooled J (:func:`_j_truth`).
 
-Cases measured otherwise (:data:`WIDE_CASES`, :class:`Channels`): 1 kHz and 500 Hz records with ADC steps on both
+Cases measured otherwise (:data:`WIDE_CASES`, :class:`Channels`): 1 kHz, 500 Hz and 100 Hz records with ADC steps on both
 channels, displacement noise and an unzeroed load cell, and rig-A's eleven speeds. The load cell's offset is a
 property of the data, allowed to be named (``load_cell_offset``) beside the two-state physics; the control must end
 within 2x of the true model's J too, since the library holds its whole truth. CI runs the 1 kHz control.
@@ -132,6 +132,11 @@ class Channels:
     offset: float = 0.0
 
 
+#: rig-A's eleven test speeds [m/s].
+ELEVEN_SPEEDS = tuple(float(v) for v in np.round(np.linspace(0.5e-3, 1.5e-3, 11), 6))
+#: A 100 Hz rig: 16-bit steps of a 300 kN and a 130 mm range, displacement noise, an unzeroed load cell.
+HUNDRED_HZ = Channels(rate=100.0, speeds=ELEVEN_SPEEDS, force_sd=15.0, displacement_sd=0.5e-6, force_step=5.0,
+                      displacement_step=2.0e-6, offset=60.0)
 #: Cases measured otherwise than the table's 200 Hz records with white force noise: other rates, both channels
 #: quantised, an unzeroed load cell (its offset is a finding of the data, named ``load_cell_offset``, not a rig
 #: effect), and eleven test speeds as rig-A has. (base, injected effects, cycles, channels). The sizes are not tuned:
@@ -157,8 +162,17 @@ WIDE_CASES = {
     "two-state + check valve 2 Hz, 11 speeds": (
         two_state_base(1.25, "gas-b"), {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5,
                                                          "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7}}, 1.25,
-        Channels(speeds=tuple(float(v) for v in np.round(np.linspace(0.5e-3, 1.5e-3, 11), 6)), force_sd=12.0,
+        Channels(speeds=ELEVEN_SPEEDS, force_sd=12.0,
                  displacement_sd=0.3e-6, force_step=2.0, displacement_step=0.5e-6, offset=40.0)),
+    # 100 Hz, the slowest rate served (a 3 s window is 300 samples): coarser steps on both channels, more force noise
+    "control two-state k1.15, 100 Hz, ADC steps, unzeroed load cell": (
+        two_state_base(1.15, "gas-a"), {}, 1.25, HUNDRED_HZ),
+    "two-state + check valve 2.2 Hz, 100 Hz, ADC steps, unzeroed load cell": (
+        two_state_base(1.35, "gas-a"), {"poppet_valve": {"natural_frequency_Hz": 2.2, "damping_ratio": 0.35,
+                                                         "cracking_pressure_Pa": 2.0e4, "span_Pa": 3.0e7}}, 1.25,
+        HUNDRED_HZ),
+    "two-state + mount 1.5e7 N per m, 100 Hz, ADC steps, unzeroed load cell": (
+        two_state_base(1.2, "gas-b"), {"series_compliance": {"stiffness_N_per_m": 1.5e7}}, 1.25, HUNDRED_HZ),
 }
 #: Wide cases CI runs (about 4 min on 2 cores); the others run with ``make test-confusion``.
 WIDE_IN_CI = ("control two-state k1.4, 1 kHz, ADC steps, unzeroed load cell",)
