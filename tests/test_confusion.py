@@ -22,8 +22,8 @@ refilled), runs with ``make test-confusion``: two controls (κ 1.1 and 1.4 at tw
 nothing or the library's ``two_state`` only, and a compliant mount and rig-A's check valve on it, which must be
 named (with ``two_state`` at most besides) and end within 2x of the true model's pooled J (:func:`_j_truth`).
 
-Cases measured otherwise (:data:`WIDE_CASES`, :class:`Channels`): 1 kHz, 500 Hz and 100 Hz records with ADC steps on both
-channels, displacement noise and an unzeroed load cell, and rig-A's eleven speeds. The load cell's offset is a
+Cases measured otherwise (:data:`WIDE_CASES`, :class:`Channels`): 1 kHz, 500 Hz and 100 Hz records with ADC steps on
+both channels, displacement noise and an unzeroed load cell, and rig-A's eleven speeds. The load cell's offset is a
 property of the data, allowed to be named (``load_cell_offset``) beside the two-state physics; the control must end
 within 2x of the true model's J too, since the library holds its whole truth. CI runs the 1 kHz control.
 With seal friction the offset is of the other sign, so the plateaus keep eq. (4)'s coefficients positive and stage 1
