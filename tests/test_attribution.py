@@ -6,9 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, paired, velocity_folds
+from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, lovo_passes, paired, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec
-from bayesdamper.diagnosis.loop import lovo_passes
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.run.progress import Progress
 
@@ -297,3 +296,66 @@ def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_th
     assert len(pairs) == 2
     assert {f.effect: f.delta_bic for f in pairs} == {"two_state+poppet_valve": -2500.0, "two_state+leakage": -400.0}
     assert earlier_leak in fits and earlier_valve not in fits
+
+
+def test_a_supported_physical_option_beyond_the_rivals_is_scored_when_the_generic_loses(monkeypatch):
+    """A round like a compliant mount's at 100 Hz: the generic option is within the margin of the two best physical
+    options by ΔBIC_eff, pairs that fail their check over their better member (not supported, so not selectable);
+    the two-state model alone, supported but ranked below them, had not been scored out of sample. It is scored now
+    and selected when it passes the rule; when it does not, the answer is none."""
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = {n: CandidateSpec(n) for n in ("unnamed_dynamics@flow", "two_state", "gas_spring", "poppet_valve")}
+
+    def row(effect, score, per_fold, supported):
+        r = {"effect": effect, "score": score, "supported": supported, "passes": supported and per_fold is not None}
+        if per_fold is not None:
+            sc = LovoScore(float(sum(per_fold)), 1.0, tuple(per_fold))
+            r.update(lovo=sc.as_dict(), _lovo=sc)
+        return r
+
+    fits = [SimpleNamespace(effect="two_state", labels=("two_state",), effects={"two_state": {}})]
+    for ts_folds, selected in (((20.0, 22.0, 18.0, 21.0, 19.0), "two_state"), ((20.0, -2.0, 18.0, 21.0, 19.0), None)):
+        scored = []
+
+        def fake_lovo(engine, folds, cand, effects, *a, folds_of=ts_folds, scored=scored, **k):
+            scored.append(tuple(c.label for c in cand))
+            return LovoScore(float(sum(folds_of)), 1.0, folds_of)
+
+        monkeypatch.setattr(loop, "lovo_score", fake_lovo)
+        gen = row("unnamed_dynamics@flow", -1335.0, [30.0, 25.0, 40.0, 20.0, 35.0], True)
+        rivals = [row("two_state+gas_spring", -1346.0, [28.0, 30.0, 33.0, 25.0, 31.0], False),
+                  row("two_state+poppet_valve", -1234.0, [29.0, 31.0, 32.0, 24.0, 30.0], False)]
+        ts = row("two_state", -1078.0, None, True)
+        best, rec = loop.unnamed_last_resort(gen, [gen, *rivals, ts], fits, specs, None, [0], [], {}, None, None,
+                                             None, {})
+        assert not rec["kept"] and sorted(rec["indistinguishable_from"]) == sorted(r["effect"] for r in rivals)
+        assert scored == [("two_state",)]  # the rivals were scored already; the supported single is scored now
+        assert rec["fallback"] == [{"effect": "two_state", "passes": selected is not None}]
+        assert (best["effect"] if best else None) == selected
+
+
+def test_a_round_that_selects_nothing_says_why_for_each_option():
+    """The report's account of a round with no selection names, for every option that passes the criterion in
+    sample, why it was not selected, and for a best pair that does not pass over its better member, that check."""
+    from bayesdamper.diagnosis.summary import none_selected_lines
+
+    lovo = {"gain": 600.0, "se": 100.0, "per_fold": [100.0, 120.0, 130.0, 110.0, 140.0]}
+    candidates = [
+        {"effect": "two_state+gas_spring", "score": -1346.0, "J_reduction": 0.49, "supported": False, "lovo": lovo,
+         "over_better_member": {"member": "two_state", "delta_BIC_eff": -269.0, "J_reduction": 0.13}},
+        {"effect": "unnamed_dynamics@flow", "score": -1335.0, "J_reduction": 0.48, "supported": True, "lovo": lovo,
+         "not_named": "a physical explanation predicts the held-out speeds as well"},
+        {"effect": "leakage", "score": -1200.0, "J_reduction": 0.30, "supported": True,
+         "lovo": {**lovo, "per_fold": [-5.0, 120.0, 130.0, 110.0, 140.0]}},
+        {"effect": "two_state", "score": -1078.0, "J_reduction": 0.41, "supported": True},
+    ]
+    first, best = none_selected_lines(candidates)
+    assert "leakage: not the held-out speeds" in first
+    assert "unnamed_dynamics@flow: not named" in first
+    assert "two_state: not scored out of sample" in first
+    assert "two_state+gas_spring" not in first  # not supported: not among those that pass in sample
+    assert best.startswith("Best candidate: two_state+gas_spring") and "over its better member two_state" in best
+    assert "J -13%" in best
+    assert none_selected_lines(candidates[:1] + [{**candidates[3], "supported": False}])[0].startswith(
+        "Selected: none - no candidate passes")

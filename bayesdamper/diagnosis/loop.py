@@ -34,7 +34,15 @@ import math
 import numpy as np
 
 from bayesdamper.diagnosis.attribution import FOLD_ITER as LOVO_FOLD_ITER
-from bayesdamper.diagnosis.attribution import lovo_score, paired, velocity_folds
+from bayesdamper.diagnosis.attribution import (
+    LOVO_MIN_FOLDS_FOR_SE,
+    LOVO_SE,
+    LOVO_SIGN_TEST_FOLDS,
+    lovo_passes,
+    lovo_score,
+    paired,
+    velocity_folds,
+)
 from bayesdamper.diagnosis.candidates import (
     GLOBAL_LM_ITER,
     LM_ITER,
@@ -76,17 +84,6 @@ REFILL = "refill_conductance_m3_per_s_Pa"
 REFILL_START = EFFECTS[TWO_STATE].param(REFILL).upper / 10
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
 LOVO_OPTIONS = 3
-#: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality) ...
-LOVO_SE = 2.0
-#: ... when there are at least this many folds; with fewer, the fold variance has too few degrees of freedom
-#: to be a normal standard error (3 folds: 2 df), and the candidate must instead predict every held-out
-#: fold better than the current model. Every fold better is required in both cases.
-LOVO_MIN_FOLDS_FOR_SE = 4
-#: From this many folds, every fold better is by itself significant: the exact one-sided sign test (the folds'
-#: gains symmetric about 0 under no effect) gives 2^-G, 3.1 % at 5 folds, below 5 %; the normal standard error is
-#: then not asked for. It assumes equal folds, which they are not: a fold of a faster speed or a longer record
-#: gains more (on a friction-dominated set, every fold better with gains +7 to +152 had 1.6 se).
-LOVO_SIGN_TEST_FOLDS = 5
 
 
 def search_option(engine, specs, start, fixed, current_sse, n_eff, flow_for, **kw):
@@ -135,16 +132,6 @@ def polish_contenders(engine, fits: list, specs: dict, fixed: dict, current_sse,
         fits[fits.index(c)] = (dataclasses.replace(done, n_evaluations=c.n_evaluations + done.n_evaluations,
                                                    cost=c.cost) if done.delta_bic < c.delta_bic
                                else dataclasses.replace(c, polish_pending=False))
-
-
-def lovo_passes(sc) -> bool:
-    """The out-of-sample part of the rule, over the folds that are not outliers
-    (:func:`bayesdamper.diagnosis.attribution.outlying_folds`): every held-out fold better, and with exactly
-    :data:`LOVO_MIN_FOLDS_FOR_SE` folds (too few for the sign test) a gain above LOVO_SE se."""
-    kept = sc.kept
-    every = len(kept) > 0 and all(d > 0 for d in kept)
-    g = len(kept)
-    return bool(every and (g < LOVO_MIN_FOLDS_FOR_SE or g >= LOVO_SIGN_TEST_FOLDS or sc.gain > LOVO_SE * sc.se))
 
 
 def _option_row(fit, j_cur: float) -> dict:
@@ -425,11 +412,22 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
     :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than :data:`LOVO_SE` standard errors of
     the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: a one-sided test at about
     2.3 % under normality, the same margin as the out-of-sample rule itself). Otherwise the physical option that
-    passes the rule with the largest gain is selected instead, or none. Without speed folds there is no
+    passes the rule with the largest gain is selected instead, or none; the rivals need not pass the rule themselves
+    (a pair that fails its check over its better member), so the :data:`LOVO_OPTIONS` best supported physical
+    options are scored out of sample as well and are among those it chooses from. Without speed folds there is no
     out-of-sample comparison: a physical option that passes wins. Returns the option selected and a record
-    (``generic``, each rival's paired gain and se, ``indistinguishable_from``, ``kept``)."""
-    physical = [r for r in rows if not _generic(r["effect"], specs) and not r.get("held_selected")]
-    physical = sorted(physical, key=lambda r: r["score"])[:PHYSICAL_RIVALS]
+    (``generic``, each rival's paired gain and se, ``indistinguishable_from``, ``kept``, and ``fallback``: the
+    supported physical options scored besides, whether each passes)."""
+    def score(r):  # the option's leave-velocities-out score, computed once
+        if "_lovo" not in r:
+            fit = next(c for c in fits if c.effect == r["effect"])
+            r["_lovo"] = lovo_score(engine, folds, sel_specs + [specs[lab] for lab in fit.labels], fit.effects,
+                                    sel_specs, fixed, current_sse, n_eff, flow_for, effect_argument, cache)
+            r["lovo"] = r["_lovo"].as_dict()
+            r["passes"] = bool(r["supported"] and lovo_passes(r["_lovo"]))
+
+    mine = [r for r in rows if not _generic(r["effect"], specs) and not r.get("held_selected")]
+    physical = sorted(mine, key=lambda r: r["score"])[:PHYSICAL_RIVALS]
     record = {"generic": best["effect"], "margin_se": LOVO_SE, "rivals": [], "indistinguishable_from": []}
     kept = True
     for r in physical:
@@ -437,12 +435,7 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
             kept = kept and not r["passes"]
             record["rivals"].append({"effect": r["effect"], "passes": r["passes"]})
             continue
-        if "_lovo" not in r:
-            fit = next(c for c in fits if c.effect == r["effect"])
-            cand = sel_specs + [specs[lab] for lab in fit.labels]
-            r["_lovo"] = lovo_score(engine, folds, cand, fit.effects, sel_specs, fixed, current_sse, n_eff,
-                                    flow_for, effect_argument, cache)
-            r["lovo"] = r["_lovo"].as_dict()
+        score(r)
         pr = paired(best["_lovo"], r["_lovo"])
         beats = bool(np.isfinite(pr["se"]) and pr["gain"] > LOVO_SE * pr["se"])
         record["rivals"].append({"effect": r["effect"], "passes": r["passes"], "gain_over": pr["gain"],
@@ -455,7 +448,14 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
         return best, record
     best["passes"] = False
     best["not_named"] = "a physical explanation predicts the held-out speeds as well"
-    passing = [r for r in physical if r["passes"]]
+    # the rivals need not be supported themselves (a pair that fails its check over its member): the best supported
+    # physical options are scored out of sample too, so that a physical explanation the rule accepts is not lost
+    fallback = sorted((r for r in mine if r["supported"] and r not in physical), key=lambda r: r["score"])
+    for r in fallback[:LOVO_OPTIONS]:
+        if folds is not None:
+            score(r)
+        record.setdefault("fallback", []).append({"effect": r["effect"], "passes": r["passes"]})
+    passing = [r for r in physical + fallback[:LOVO_OPTIONS] if r["passes"]]
     return (max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None), record
 
 

@@ -250,6 +250,44 @@ def summarise_diagnosis(ds, windows, base, final, base_resid, final_resid, noise
     }
 
 
+def none_selected_lines(candidates: list[dict]) -> list[str]:
+    """Why a round selected nothing, from its candidates (best first): which options pass the criterion in sample
+    and why each is not selected (the held-out speeds, a generic option not named, or not scored out of sample),
+    and what the best candidate lacks."""
+    lines: list[str] = []
+    passing = [c for c in candidates if c.get("supported")]
+    if not passing:
+        lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
+                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J.")
+    else:
+        why = {"not the held-out speeds": [c for c in passing if "lovo" in c and not c.get("not_named")],
+               "not named: a physical explanation predicts the held-out speeds as well":
+                   [c for c in passing if c.get("not_named")],
+               "not scored out of sample (ranked below those scored)": [c for c in passing if "lovo" not in c]}
+        parts = [f"{', '.join(c['effect'] for c in cs)}: {w}" for w, cs in why.items() if cs]
+        lines.append(f"Selected: none - passing delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
+                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J in sample: {'; '.join(parts)}.")
+    if candidates:
+        c = candidates[0]
+        inc = c.get("over_better_member")
+        if not c.get("supported") and inc and c["score"] <= SELECT_DELTA_BIC and \
+                c.get("J_reduction", 0.0) >= MIN_J_REDUCTION:
+            lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
+                         f"-{c['J_reduction']:.0%}) does not pass over its better member {inc['member']} "
+                         f"(delta-BIC_eff {inc['delta_BIC_eff']:+.0f}, J -{inc['J_reduction']:.0%}; "
+                         f"{MIN_J_REDUCTION:.0%} asked): the second effect does not earn its place.")
+        elif c.get("supported") and "lovo" in c:
+            folds = ", ".join(f"{g:+.0f}" for g in c["lovo"]["per_fold"])
+            lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
+                         f"-{c.get('J_reduction', float('nan')):.0%}) is supported in sample but does not "
+                         f"predict every held-out speed better (folds {folds}).")
+        else:
+            lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
+                         f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
+                         "the library's effects reproduces it.")
+    return lines
+
+
 def report_text(d: dict) -> str:
     """A short plain-text account of what the diagnosis found."""
     s = d["structure_before"]["summary"]
@@ -309,24 +347,7 @@ def report_text(d: dict) -> str:
             vals = ", ".join(f"{k} = {v:.4g}" for k, v in shown.items())
             lines.append(f"Selected: {label} ({vals}): {effect_reading(label, values, EFFECTS[name].description)}")
     else:
-        passing = [c for c in d["candidates"] if c.get("supported")]
-        lines.append(f"Selected: none - no candidate passes both delta-BIC_eff <= {SELECT_DELTA_BIC:g} and a "
-                     f"{MIN_J_REDUCTION:.0%} reduction of the pooled J." if not passing else
-                     f"Selected: none - {', '.join(c['effect'] for c in passing)} "
-                     f"{'passes' if len(passing) == 1 else 'pass'} delta-BIC_eff <= "
-                     f"{SELECT_DELTA_BIC:g} and a {MIN_J_REDUCTION:.0%} reduction of the pooled J in sample but "
-                     "not the held-out speeds.")
-        if d["candidates"]:
-            c = d["candidates"][0]
-            if c.get("supported") and "lovo" in c:
-                folds = ", ".join(f"{g:+.0f}" for g in c["lovo"]["per_fold"])
-                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}, J "
-                             f"-{c.get('J_reduction', float('nan')):.0%}) is supported in sample but does not "
-                             f"predict every held-out speed better (folds {folds}).")
-            else:
-                lines.append(f"Best candidate: {c['effect']} (delta-BIC_eff {c['score']:+.0f}) lowers the pooled J "
-                             f"by only {c.get('J_reduction', float('nan')):.0%}: the structure is real but none of "
-                             "the library's effects reproduces it.")
+        lines += none_selected_lines(d["candidates"])
     lines += [f"Finding: {x}" for x in findings_text(d)]
     kinds = s.get("parameters_by_kind_median", {})
     if len(kinds) == 2:
