@@ -412,9 +412,10 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
     :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than :data:`LOVO_SE` standard errors of
     the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: a one-sided test at about
     2.3 % under normality, the same margin as the out-of-sample rule itself). Otherwise the physical option that
-    passes the rule with the largest gain is selected instead, or none; the rivals need not pass the rule themselves
-    (a pair that fails its check over its better member), so the :data:`LOVO_OPTIONS` best supported physical
-    options are scored out of sample as well and are among those it chooses from. Without speed folds there is no
+    passes the rule with the largest gain is selected instead; when no rival passes (the rivals need not pass the
+    rule themselves: a pair that fails its check over its better member), the :data:`LOVO_OPTIONS` best supported
+    physical options are scored out of sample and the one of them that passes with the largest gain is selected,
+    or none. Without speed folds there is no
     out-of-sample comparison: a physical option that passes wins. Returns the option selected and a record
     (``generic``, each rival's paired gain and se, ``indistinguishable_from``, ``kept``, and ``fallback``: the
     supported physical options scored besides, whether each passes)."""
@@ -448,14 +449,16 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
         return best, record
     best["passes"] = False
     best["not_named"] = "a physical explanation predicts the held-out speeds as well"
-    # the rivals need not be supported themselves (a pair that fails its check over its member): the best supported
-    # physical options are scored out of sample too, so that a physical explanation the rule accepts is not lost
-    fallback = sorted((r for r in mine if r["supported"] and r not in physical), key=lambda r: r["score"])
-    for r in fallback[:LOVO_OPTIONS]:
-        if folds is not None:
-            score(r)
-        record.setdefault("fallback", []).append({"effect": r["effect"], "passes": r["passes"]})
-    passing = [r for r in physical + fallback[:LOVO_OPTIONS] if r["passes"]]
+    passing = [r for r in physical if r["passes"]]
+    if not passing:  # rivals that cannot be selected (pairs failing their check over their better member): the best
+        # supported physical options are scored out of sample, so that a physical explanation the rule accepts is
+        # not lost behind them
+        fallback = sorted((r for r in mine if r["supported"] and r not in physical), key=lambda r: r["score"])
+        for r in fallback[:LOVO_OPTIONS]:
+            if folds is not None:
+                score(r)
+            record.setdefault("fallback", []).append({"effect": r["effect"], "passes": r["passes"]})
+        passing = [r for r in fallback[:LOVO_OPTIONS] if r["passes"]]
     return (max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None), record
 
 
