@@ -178,17 +178,7 @@ WIDE_CASES = {
 WIDE_IN_CI = ("control two-state k1.4, 1 kHz, ADC steps, unzeroed load cell",)
 #: The family of the load-cell offset: a property of the data's force channel, allowed in any case that has one.
 OFFSET_FAMILY = "offset"
-#: Cases the loop is known to get wrong, with what it does instead (strict: the mark fails the day the case passes).
-KNOWN_MISSES = {
-    "two-state + mount 1.5e7 N per m, 100 Hz, ADC steps, unzeroed load cell": (
-        "the mount is missed: no option with series_compliance reaches the eight best of the first round; the "
-        "best, two_state + gas_spring (J 0.0080, the truth's 0.0048), lowers two_state's J by 13 %, short of the "
-        "20 %, and two_state alone, seventh, is not scored out of sample, so the answer is none (the same form on "
-        "another 100 Hz set, seed 507 of benchmarks/triangular_sets.py, is found)"),
-}
-_PARAMS = [pytest.param(c, marks=[pytest.mark.slow if c in IN_CI + WIDE_IN_CI else pytest.mark.confusion,
-                                  *([pytest.mark.xfail(strict=True, reason=KNOWN_MISSES[c])] if c in KNOWN_MISSES
-                                    else [])])
+_PARAMS = [pytest.param(c, marks=pytest.mark.slow if c in IN_CI + WIDE_IN_CI else pytest.mark.confusion)
            for c in (*CASES, *TWO_STATE_CASES, *WIDE_CASES)]
 
 
