@@ -450,15 +450,15 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
     best["passes"] = False
     best["not_named"] = "a physical explanation predicts the held-out speeds as well"
     passing = [r for r in physical if r["passes"]]
-    if not passing:  # rivals that cannot be selected (pairs failing their check over their better member): the best
-        # supported physical options are scored out of sample, so that a physical explanation the rule accepts is
-        # not lost behind them
+    if not passing:  # rivals that cannot be selected (pairs failing their check over their better member): the
+        # best supported physical options are scored, so that an explanation the rule accepts is not lost behind them
         fallback = sorted((r for r in mine if r["supported"] and r not in physical), key=lambda r: r["score"])
-        for r in fallback[:LOVO_OPTIONS]:
+        fallback = fallback[:LOVO_OPTIONS]
+        for r in fallback:
             if folds is not None:
                 score(r)
-            record.setdefault("fallback", []).append({"effect": r["effect"], "passes": r["passes"]})
-        passing = [r for r in fallback[:LOVO_OPTIONS] if r["passes"]]
+        record["fallback"] = [{"effect": r["effect"], "passes": r["passes"]} for r in fallback]
+        passing = [r for r in fallback if r["passes"]]
     return (max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None), record
 
 
