@@ -3,9 +3,15 @@
 The diagnosis starts from the calibrated baseline (eq. (7), or eq. (7) with the effects already selected) of every
 window (:class:`bayesdamper.io.windows.Window`), whatever its kind: a transient whose flow coefficients come from
 stage 1 and whose start force from the samples before the step, or a window of whole cycles with its own flow
-coefficients and start. The residual is taken at the posterior medians of each window's parameters; the noise is
-the plateaus' where there are plateaus, else each window's own estimate (:mod:`bayesdamper.inference.noise`), in
-the form the structure test needs (:func:`bayesdamper.diagnosis.residual.structure_test`).
+coefficients and start. The residual reported is taken at the posterior medians of each window's parameters; the
+noise is the plateaus' where there are plateaus, else each window's own estimate (:mod:`bayesdamper.inference.noise`),
+in the form the structure test needs (:func:`bayesdamper.diagnosis.residual.structure_test`).
+
+What the candidate search starts from (the residual whose dynamics it reads, the gain scales of the generic effect,
+every window's warm start and the start force of a window that starts in motion) is taken at each window's
+least-squares optimum instead (:func:`least_squares_optima`): a posterior median carries the sampler's Monte Carlo
+error, and a search of local optima started from it can end in another optimum when that error moves by a fraction
+of a percent; the optimum, found from the window's deterministic point fit, does not move with it.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ import numpy as np
 from bayesdamper.core.params import FlowCoefficients
 from bayesdamper.diagnosis.residual import SMOOTH_S, plateau_noise
 
-__all__ = ["baseline_residuals", "pooled_noise", "search_problems", "stage_one_for", "warm_start",
+__all__ = ["baseline_residuals", "least_squares_optima", "pooled_noise", "search_problems", "stage_one_for",
            "window_noise_dict"]
 
 #: Largest number of samples of a window in the candidate search: every q-th sample above it (the search compares
@@ -102,12 +108,54 @@ def pooled_noise(noises: list[dict]) -> dict:
             "source": "each window's own estimate (median shown)"}
 
 
-def warm_start(problem, entry: dict, area: float) -> np.ndarray:
-    """A window's own parameters at its baseline posterior medians (the engine's warm start)."""
+def _point_start(problem, entry: dict, area: float) -> np.ndarray:
+    """A window's own parameters at its baseline's deterministic point fit (the entry's ``ls``: the paper's
+    Nelder-Mead point, or the least squares of all seven parameters of a window without plateaus), the posterior
+    median where the point fit has no value; the start force of a window in motion from its first samples where
+    the point fit has none."""
+    ls = entry.get("ls") or {}
+    names = ("CL12", "CQ12", "CL21", "CQ21")
     flow = entry.get("flow") or {}
-    f4 = np.array([flow[n]["median"] for n in ("CL12", "CQ12", "CL21", "CQ21")]) if flow else None
-    start = entry["dp0_Pa"]["median"] * area if "dp0_Pa" in entry else None
-    return problem.inner_start(entry["alpha_V"]["median"], entry["p_R_Pa"]["median"], start, f4)
+    f4 = (np.array([ls[n] for n in names]) if all(n in ls for n in names)
+          else np.array([flow[n]["median"] for n in names]) if flow else None)
+    start = ls["dp0_Pa"] * area if "dp0_Pa" in ls else None
+    return problem.inner_start(ls.get("alpha_V", entry["alpha_V"]["median"]),
+                               ls.get("p_R_Pa", entry["p_R_Pa"]["median"]), start, f4)
+
+
+def least_squares_optima(windows, results, damper, flow0: FlowCoefficients | None, max_steps_per_sample: int,
+                         workers: int = 1):
+    """Every window's own parameters at the least-squares optimum of the calibrated baseline (eq. (7)), on all its
+    samples: re-fitted from its point fit (:func:`_point_start`) and from the best of a spread over the (α_V, p_R)
+    box, the better optimum kept (:meth:`~bayesdamper.diagnosis.engine.ProfileEngine.evaluate` with ``keep``).
+
+    Returns ``(optima, residuals, flows)``: per window the optimum's physical values
+    (:meth:`~bayesdamper.inference.problem.EffectsProblem.unpack_inner`), its residual (model − measured) [N] (the
+    measured force where no solve succeeds) and its flow coefficients.
+    """
+    from bayesdamper.diagnosis.engine import ProfileEngine
+    from bayesdamper.inference.problem import EffectsProblem
+    from bayesdamper.physics.with_effects import effect_argument
+
+    area = damper.piston_area
+    problems = [EffectsProblem.from_window(w, damper, flow0, max_steps=max_steps_per_sample * w.time.size)
+                for w in windows]
+    starts = [_point_start(p, r.entry, area) for p, r in zip(problems, results, strict=True)]
+    engine = ProfileEngine(problems, starts, workers)
+    try:
+        _, xs, resid = engine.evaluate(effect_argument({}), None, keep=True)
+    finally:
+        engine.close()
+    optima = [p.unpack_inner(x) for p, x in zip(problems, xs, strict=True)]
+    flows = [FlowCoefficients(*o["flow"]) if "flow" in o else flow0 for o in optima]
+    resid = [r if r is not None else w.force.copy() for w, r in zip(windows, resid, strict=True)]
+    return optima, resid, flows
+
+
+def _warm(problem, optimum: dict) -> np.ndarray:
+    """x of a search problem at a window's least-squares optimum (:func:`least_squares_optima`)."""
+    return problem.inner_start(optimum["alpha_V"], optimum["p_R_Pa"], optimum.get("start_force_N"),
+                               optimum.get("flow"))
 
 
 def stage_one_for(plateaus, area: float, source: str):
@@ -140,22 +188,21 @@ def _subsampled(window, q: int, t_end: float | None = None):
     return window.time[keep][::q], window.force[keep][::q]
 
 
-def search_problems(windows, results, damper, flow0, max_steps_per_sample: int):
+def search_problems(windows, optima, damper, flow0, max_steps_per_sample: int):
     """The candidate search's problems (:class:`~bayesdamper.inference.problem.EffectsProblem`) of the windows, their
-    warm starts at the baseline posterior, and the screening stretches of windows of whole cycles with theirs.
+    warm starts at the windows' least-squares ``optima`` (:func:`least_squares_optima`), and the screening stretches
+    of windows of whole cycles with theirs.
 
     A window of whole cycles enters by its first stretch (:data:`SEARCH_CYCLES`); a window that starts in motion
-    starts from the force its baseline estimated there (data, not a parameter of the search); more than
+    starts from the force its optimum put there (data, not a parameter of the search); more than
     :data:`MAX_SEARCH_SAMPLES` samples are thinned. Returns ``(problems, warm, screen,
     screen_warm)``; the screening lists are None when no window is of whole cycles.
     """
     from bayesdamper.inference.problem import EffectsProblem
 
-    area = damper.piston_area
     problems, warm, screen, screen_warm = [], [], [], []
-    for w, res in zip(windows, results, strict=True):
-        e = res.entry
-        start = None if w.starts_settled or "dp0_Pa" not in e else float(e["dp0_Pa"]["median"]) * area
+    for w, opt in zip(windows, optima, strict=True):
+        start = None if w.starts_settled else opt.get("start_force_N")
         cyc = float(w.info.get("cycle_s", 0.0)) if w.kind == "cycles" else 0.0
         t_search = w.t_step + max(SEARCH_CYCLES * cyc, SEARCH_MIN_S) if w.kind == "cycles" else None
         n_search = int(np.count_nonzero(w.time <= t_search)) if t_search is not None else w.time.size
@@ -164,15 +211,16 @@ def search_problems(windows, results, damper, flow0, max_steps_per_sample: int):
         prob = EffectsProblem.from_window(w, damper, flow0, time=t, force=f, start_force=start,
                                           max_steps=max_steps_per_sample * t.size)
         problems.append(prob)
-        warm.append(warm_start(prob, e, area))
+        warm.append(_warm(prob, opt))
         if w.kind == "cycles":
             span = max(SCREEN_CYCLES * cyc, SCREEN_MIN_S)
             t, f = _subsampled(w, q, w.t_step + span)
             if t.size < problems[-1].time.size or flow0 is None:
-                sp = EffectsProblem.from_window(w, damper, flow0 or _flow_of(e, None), time=t, force=f,
+                flow = flow0 or FlowCoefficients(*opt["flow"])
+                sp = EffectsProblem.from_window(w, damper, flow, time=t, force=f,
                                                 start_force=start, max_steps=max_steps_per_sample * t.size)
                 screen.append(sp)
-                screen_warm.append(warm_start(sp, e, area))
+                screen_warm.append(_warm(sp, opt))
     if not screen:
         return problems, warm, None, None
     if len(screen) < len(problems):  # transients beside the cycles: the screen keeps them whole

@@ -19,6 +19,7 @@ from bayesdamper.core.errors import BayesDamperError, SettingsError
 from bayesdamper.diagnosis.attribution import screening_subset
 from bayesdamper.diagnosis.calibrated import (
     baseline_residuals,
+    least_squares_optima,
     pooled_noise,
     search_problems,
     stage_one_for,
@@ -238,11 +239,15 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
         row.update(describe_residual(w.time - w.t_step, r, w.force, rate))
         rows.append(row)
     structure = summarise_structure(rows)
-    # the residual's dynamic signature from the model's own signals (measured - model; base_resid is model - measured)
-    base_model = [w.force + r for w, r in zip(windows, base_resid, strict=True)]
+    # what the search starts from: every window's least-squares optimum, which the sampler's Monte Carlo error does
+    # not move (the residual reported above is the posterior medians')
+    with progress.phase("diagnose: least-squares baseline", total=len(windows), unit="window"):
+        optima, ls_resid, ls_flows = least_squares_optima(windows, base, ds.damper, flow0, STEPS_PER_SAMPLE, workers)
+    # the residual's dynamic signature from the model's own signals (measured - model; ls_resid is model - measured)
+    base_model = [w.force + r for w, r in zip(windows, ls_resid, strict=True)]
     with progress.phase("diagnose: residual dynamics", unit="fit"):
         if structure["n_structured"]:
-            signature = residual_signature(windows, [-r for r in base_resid], base_model, area, base_flows, workers)
+            signature = residual_signature(windows, [-r for r in ls_resid], base_model, area, ls_flows, workers)
         else:  # the dynamics of a residual are the form of its structure: with none there is nothing to read
             signature = {"verdict": "not identified",
                          "reason": "no window's residual is structured (F test): there are no dynamics to identify"}
@@ -263,15 +268,15 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     names = library_candidates([n for n in names if n != GENERIC], signature, offset)
     if generic:
         dp_typ = float(np.median(np.abs(np.concatenate(base_model)))) / area
-        c = np.median([f.as_array() for f in base_flows], axis=0)
+        c = np.median([f.as_array() for f in ls_flows], axis=0)
         slope = orifice_flow_and_slope(dp_typ, c[0], c[1], c[2], c[3])[1]
         names += unnamed_candidates(signature, area, float(slope),
-                                    _gain_scale(signature, windows, base_resid, base_model, area, base_flows),
-                                    {k: _rms_ratio(windows, base_resid, base_model, area, base_flows, k)
+                                    _gain_scale(signature, windows, ls_resid, base_model, area, ls_flows),
+                                    {k: _rms_ratio(windows, ls_resid, base_model, area, ls_flows, k)
                                      for k in FLOW_DRIVERS})
     # the search caps a solve's steps (STEPS_PER_SAMPLE) at the problems' default tolerance (EFFECTS_RTOL, with the
     # forward differences on replayed steps); the final model is solved uncapped at the likelihood's tolerance
-    problems, warm, screen, screen_warm = search_problems(windows, base, ds.damper, flow0, STEPS_PER_SAMPLE)
+    problems, warm, screen, screen_warm = search_problems(windows, optima, ds.damper, flow0, STEPS_PER_SAMPLE)
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
                     rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
