@@ -477,6 +477,58 @@ def test_ridge_crest_and_widths_survive_a_solvers_noise():
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
 
 
+def _corner_ridge_logp(theta):
+    """A thin ridge that runs into a corner of the box with its mass there, like a 100 Hz slow start's (log α_V,
+    log p_R) under eq. (7), whose data ask for the stiffest fluid the box allows (α_V at its bottom, p_R at its top;
+    written from that shape, not fitted to it): x falls as exp(-3 x) from the box's edge at 0.5, y | x ~ N(g(x),
+    0.005²) with g(x) = 16.1 - 0.9 (x - 0.5), which meets the box's top at the corner (0.5, 16.1)."""
+    x, y = float(theta[0]), float(theta[1])
+    if not (0.5 < x < 8.5 and 6.9 < y < 16.1):
+        return -np.inf
+    return -3.0 * x - 0.5 * ((y - (16.1 - 0.9 * (x - 0.5))) / 0.005) ** 2
+
+
+def _corner_ridge_x_quantiles(qs):
+    """x's quantiles on the corner ridge: exp(-3 x) times the share of y's normal inside the box (y < 16.1)."""
+    from scipy.stats import norm
+
+    x = np.linspace(0.5, 4.0, 400_001)
+    d = np.exp(-3.0 * (x - 0.5)) * norm.cdf(0.9 * (x - 0.5) / 0.005)
+    c = np.cumsum(d)
+    return np.interp(qs, c / c[-1], x)
+
+
+def test_ridge_proposal_follows_a_crest_into_a_corner_of_the_box():
+    """A posterior whose mass lies in a corner of the box: every line across the ridge near the corner leaves the
+    box on both sides within a fraction of the crest's bracket. The crest is searched inside the box, so the ridge
+    proposal is built from a pilot cloud in the corner (a crest searched across the whole bracket finds none: the
+    bracket lies outside the box), its crest follows g inside the box, and 'de+pilot' from the corner converges with
+    x's 5/50/95 % quantiles at the exact ones
+    within 2000 steps (within 4 Monte Carlo sds of a quantile at ESS 1000, sqrt(q (1 - q) / 1000) / f(x_q), f the
+    density there, about 3 (1 - q); seed 7)."""
+    from bayesdamper.inference.proposals import ridge_proposal
+
+    rng = np.random.default_rng(2)
+    x = 0.5 + np.abs(0.15 * rng.standard_normal((3, 50, 12)))
+    y = np.minimum(16.1 - 0.9 * (x - 0.5) + 0.005 * rng.standard_normal(x.shape), 16.1 - 1e-6)
+    chains = np.stack([x, y], axis=-1)
+    lps = np.array([_corner_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
+    move, n_eval = ridge_proposal(_corner_ridge_logp, chains, lps, *RIDGE_BOX)
+    assert move is not None and n_eval > 0
+    pts = move.centre + np.outer(move.a, move.axes[:, 0]) + np.outer(move.crest, move.axes[:, 1])
+    assert np.all((pts > RIDGE_BOX[0]) & (pts < RIDGE_BOX[1]))
+    inside = pts[:, 1] < 16.1 - 0.01  # near the corner the crest is the box's edge
+    assert np.max(np.abs(pts[inside, 1] - (16.1 - 0.9 * (pts[inside, 0] - 0.5)))) < 0.005
+    start = np.array([0.55, 16.1 - 0.9 * 0.05])
+    scale = np.diag([0.1, 0.09]) ** 2
+    pil = sample_posterior(_corner_ridge_logp, start, *RIDGE_BOX,
+                           SamplerSettings(move="de+pilot", check_every=50, max_steps=2000), seed=7, scale=scale)
+    assert pil.converged, pil.reason
+    q = np.array([0.05, 0.5, 0.95])
+    mc_sd = np.sqrt(q * (1.0 - q) / 1000.0) / (3.0 * (1.0 - q))  # a quantile's sd at ESS 1000: sqrt(q(1-q)/n) / f
+    assert np.all(np.abs(np.percentile(pil.flat()[:, 0], 100 * q) - _corner_ridge_x_quantiles(q)) < 4.0 * mc_sd)
+
+
 def test_tau_is_emcees_integrated_time():
     """The convergence checks' τ (every walker and parameter in one real FFT) is emcee's ``integrated_time`` with
     the same window constant: AR(1) chains of 1 to 3001 steps, 8 or 16 walkers; a parameter whose walkers never

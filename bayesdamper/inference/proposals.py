@@ -270,20 +270,39 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
         v = float(log_prob(x))
         return v if np.isfinite(v) else -np.inf
 
+    def inside(a: float) -> tuple[float, float]:
+        """The b of the line across the axis at ``a`` that lie inside the box (an empty interval: lo >= hi)."""
+        p = centre + a * axes[:, 0]
+        v = axes[:, 1]
+        lo, hi = -np.inf, np.inf
+        for i in range(2):
+            if v[i] != 0.0:
+                e0, e1 = sorted(((lower[i] - p[i]) / v[i], (upper[i] - p[i]) / v[i]))
+                lo, hi = max(lo, e0), min(hi, e1)
+            elif not lower[i] < p[i] < upper[i]:
+                return 0.0, 0.0
+        return lo, hi
+
     def crest(a: float, guess: float, width: float) -> tuple[float, float, float]:
-        """(b, log-density, width) of the crest across the axis at ``a``."""
-        lo, hi = guess - 4.0 * width, guess + 4.0 * width
+        """(b, log-density, width) of the crest across the axis at ``a``: searched in a bracket about ``guess``
+        clipped to the box, so that a crest cut by the box (a posterior whose mass lies in one of its corners) ends
+        on the box's edge instead of lost outside it."""
+        box_lo, box_hi = inside(a)
+        lo, hi = max(guess - 4.0 * width, box_lo), min(guess + 4.0 * width, box_hi)
+        if lo >= hi:
+            return guess, -np.inf, width
 
         def cost(b: float) -> float:
             v = lp(a, b)
             return -v if np.isfinite(v) else 1e300
 
-        for _ in range(3):  # re-centred while the maximum sits at the bracket's edge
-            r = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * width})
+        for _ in range(3):  # re-centred while the maximum sits at the bracket's edge (not the box's)
+            r = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * min(width, hi - lo)})
             b = float(r.x)
-            if min(b - lo, hi - b) > 0.1 * (hi - lo):
+            edge = min(b - lo if lo > box_lo else np.inf, hi - b if hi < box_hi else np.inf)
+            if edge > 0.1 * (hi - lo):
                 break
-            lo, hi = b - 4.0 * width, b + 4.0 * width
+            lo, hi = max(b - 4.0 * width, box_lo), min(b + 4.0 * width, box_hi)
         top = lp(a, b)
         if not np.isfinite(top):
             return b, -np.inf, width
