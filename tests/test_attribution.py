@@ -27,12 +27,34 @@ def test_pass_rule_every_fold_and_se_with_enough_folds():
     # three folds: every fold better suffices (2 df: no usable normal se), one worse fails
     assert lovo_passes(LovoScore(550.0, 268.0, (10.0, 240.0, 300.0)))
     assert not lovo_passes(LovoScore(530.0, 268.0, (-10.0, 240.0, 300.0)))
-    # four folds: every fold better is no significant sign test (1/16): also > 2 se
-    assert lovo_passes(LovoScore(420.0, 150.0, (194.0, 51.0, 70.0, 105.0)))
+    # four folds: every fold better is no significant sign test (1/16): also above the margin, Student's t with 3 df
+    # at 2.3 % (3.31 se); 2.8 se, enough for a normal 2 se, is not
+    assert lovo_passes(LovoScore(420.0, 120.0, (194.0, 51.0, 70.0, 105.0)))
+    assert not lovo_passes(LovoScore(420.0, 150.0, (194.0, 51.0, 70.0, 105.0)))
     assert not lovo_passes(LovoScore(58.0, 40.0, (1.0, 1.0, 1.0, 55.0)))
     # five folds and more: every fold better is the sign test at 2^-5 = 3.1 %, whatever the se of unequal folds
     assert lovo_passes(LovoScore(218.0, 138.6, (11.0, 7.0, 9.0, 39.0, 152.0)))
     assert not lovo_passes(LovoScore(200.0, 50.0, (-1.0, 51.0, 50.0, 50.0, 50.0)))
+
+
+def test_the_margin_is_students_t_at_the_level_of_two_normal_standard_errors():
+    """The margin in standard errors (:func:`se_margin`): with an se from G folds' own spread, P(T > margin) is
+    P(Z > 2) for T ~ t(G - 1), checked by simulation (seeded; within 4 binomial sds of 2.3 % over 200 000 draws,
+    0.13 % absolute; a normal 2 would be exceeded 7 % of the time with 4 folds); it falls towards 2 as the folds
+    grow, and with one fold there is none."""
+    from scipy.stats import norm
+
+    from bayesdamper.diagnosis.attribution import se_margin
+
+    rng = np.random.default_rng(11)
+    for g in (4, 6, 11):
+        d = rng.standard_normal((200_000, g))
+        t = d.sum(axis=1) / np.sqrt(g * d.var(axis=1, ddof=1))  # the gain over its se under no effect
+        p = norm.sf(2.0)
+        assert abs(np.mean(t > se_margin(g)) - p) < 4.0 * math.sqrt(p * (1.0 - p) / t.size), g
+    margins = [se_margin(g) for g in range(3, 40)]
+    assert all(a > b > 2.0 for a, b in zip(margins, margins[1:], strict=False))
+    assert se_margin(1) == math.inf and se_margin(200) == pytest.approx(2.0, abs=0.02)
 
 
 def test_paired_difference_and_its_se():
@@ -143,7 +165,7 @@ def _last_resort_case(generic_folds, physical_folds, physical_passes, folds=True
 
     gen = row("unnamed_dynamics@flow", -900.0, generic_folds, True)
     phys = row("two_state", -800.0, physical_folds, physical_passes)
-    weak = row("friction", -5.0, [-1.0, -2.0, -1.0, -3.0, -2.0], False)
+    weak = row("friction", -5.0, [-1.0, -2.0, -1.0, -3.0, -2.0, -1.0][:len(generic_folds)], False)
     return unnamed_last_resort(gen, [gen, phys, weak], [], specs, None, [0] if folds else None, [], {}, None, None,
                                None, {})
 
@@ -161,6 +183,14 @@ def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sampl
     # without speed folds there is no out-of-sample comparison: a passing physical option wins
     best, rec = _last_resort_case([60.0, 70.0, 65.0, 80.0, 75.0], [20.0, 25.0, 30.0, 35.0, 30.0], True, folds=False)
     assert best["effect"] == "two_state"
+    # better by 2.3 se over six folds: past a normal 2 se, within Student's t with 5 df (2.65 se): the physics
+    diff = np.array([1.0, 3.0, -1.0, 4.0, 0.5, 2.5])
+    ratio = diff.sum() / math.sqrt(diff.size * np.var(diff, ddof=1))
+    assert 2.0 < ratio < 2.65
+    phys = [20.0, 25.0, 30.0, 35.0, 30.0, 28.0]
+    best, rec = _last_resort_case(list(np.add(phys, diff)), phys, True)
+    assert best["effect"] == "two_state" and not rec["kept"], rec
+    assert rec["rivals"][0]["margin_se"] == pytest.approx(2.6486, abs=1e-3)
 
 
 def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeypatch):

@@ -16,6 +16,10 @@ cross-validation, Vehtari, Gelman & Gabry 2017). A fold whose gain is an outlier
 identifier, :func:`outlying_folds`) is set aside and reported: one fold whose speeds the re-fitted shared parameters
 extrapolate to badly can neither veto an effect the other folds support nor carry one they do not. Against a
 runner-up the same is done on the paired differences of the two candidates' d_g.
+
+A gain is judged against its standard error by :func:`se_margin`: the standard error is estimated from the G folds'
+own spread, so the margin is Student's t with G - 1 degrees of freedom at the one-sided level that
+:data:`LOVO_SE` = 2 normal standard errors give (2.3 %), not the normal 2 itself (with six folds 2.65).
 """
 
 from __future__ import annotations
@@ -24,16 +28,21 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import norm
+from scipy.stats import t as student_t
 
 from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
-__all__ = ["LOVO_MIN_FOLDS_FOR_SE", "LOVO_SE", "LOVO_SIGN_TEST_FOLDS", "MAX_FOLDS", "SCREEN_ABOVE", "LovoScore",
-           "lovo_passes", "lovo_score", "paired", "screening_subset", "velocity_folds"]
+__all__ = ["LOVO_LEVEL", "LOVO_MIN_FOLDS_FOR_SE", "LOVO_SE", "LOVO_SIGN_TEST_FOLDS", "MAX_FOLDS", "SCREEN_ABOVE",
+           "LovoScore", "lovo_passes", "lovo_score", "paired", "screening_subset", "se_margin", "velocity_folds"]
 
-#: The gain must exceed this many standard errors (about a one-sided 2.3 % level under normality) ...
+#: The gain must be significant at the one-sided level this many normal standard errors give (:data:`LOVO_LEVEL`,
+#: 2.3 %; :func:`se_margin` turns it into a margin in standard errors for the number of folds) ...
 LOVO_SE = 2.0
+#: (the level itself: P(Z > 2) for a standard normal Z)
+LOVO_LEVEL = float(norm.sf(LOVO_SE))
 #: ... when there are at least this many folds; with fewer, the fold variance has too few degrees of freedom
-#: to be a normal standard error (3 folds: 2 df), and the candidate must instead predict every held-out
+#: to judge by (3 folds: 2 df, a margin of 4.5 se), and the candidate must instead predict every held-out
 #: fold better than the current model. Every fold better is required in both cases.
 LOVO_MIN_FOLDS_FOR_SE = 4
 #: From this many folds, every fold better is by itself significant: the exact one-sided sign test (the folds'
@@ -189,20 +198,30 @@ def lovo_score(engine, folds: list[np.ndarray], cand_specs: list[CandidateSpec],
     return LovoScore(float(k.sum()), se, tuple(float(x) for x in d), tuple(bool(o) for o in out))
 
 
+def se_margin(n_folds: int, level: float = LOVO_LEVEL) -> float:
+    """How many of its standard errors a gain summed (or averaged) over ``n_folds`` folds must exceed to be
+    significant at the one-sided ``level``, when the standard error comes from the folds' own spread: the upper
+    ``level`` quantile of Student's t with ``n_folds`` - 1 degrees of freedom (inf with fewer than 2 folds: no
+    spread, no standard error). It falls towards the normal :data:`LOVO_SE` as the folds grow (3.31 with 4 folds,
+    2.65 with 6, 2.28 with 11)."""
+    return float(student_t.isf(level, n_folds - 1)) if n_folds >= 2 else math.inf
+
+
 def paired(a: LovoScore, b: LovoScore) -> dict:
     """Gain of ``a`` over ``b`` with the standard error of the paired fold differences (outlying differences set
-    aside as in :func:`lovo_score`)."""
+    aside as in :func:`lovo_score`), their number ``n`` and the ``margin`` [se] the gain must exceed
+    (:func:`se_margin`)."""
     diff = np.array(a.per_fold) - np.array(b.per_fold)
     diff = diff[~outlying_folds(diff)]
     se = float(math.sqrt(len(diff) * np.var(diff, ddof=1))) if len(diff) > 1 else float("inf")
-    return {"gain": float(diff.sum()), "se": se}
+    return {"gain": float(diff.sum()), "se": se, "n": int(len(diff)), "margin": se_margin(len(diff))}
 
 
 def lovo_passes(sc) -> bool:
     """The out-of-sample part of the rule, over the folds that are not outliers
     (:func:`outlying_folds`): every held-out fold better, and with exactly
-    :data:`LOVO_MIN_FOLDS_FOR_SE` folds (too few for the sign test) a gain above LOVO_SE se."""
+    :data:`LOVO_MIN_FOLDS_FOR_SE` folds (too few for the sign test) a gain above :func:`se_margin` se."""
     kept = sc.kept
     every = len(kept) > 0 and all(d > 0 for d in kept)
     g = len(kept)
-    return bool(every and (g < LOVO_MIN_FOLDS_FOR_SE or g >= LOVO_SIGN_TEST_FOLDS or sc.gain > LOVO_SE * sc.se))
+    return bool(every and (g < LOVO_MIN_FOLDS_FOR_SE or g >= LOVO_SIGN_TEST_FOLDS or sc.gain > se_margin(g) * sc.se))

@@ -36,10 +36,12 @@ ridge of equal B); the held-out α_V is the one that gives the predicted B at th
 counts as predicting no force (J = 1 for that window).
 
 The verdict per kind (and over all windows): the winner has the lowest held-out pooled J; eq. (6) suffices unless
-another model's held-out pooled J is lower than eq. (6)'s by more than :data:`MARGIN_SE` = 2 standard errors of
-the mean of the paired per-fold differences d_f = J_other,f − J_eq6,f (J_f the held-out pooled J of the fold's
-windows of that kind; sd(d_f) / sqrt(F) over the F folds that have such windows; fewer than 2 folds: no margin can
-be formed and eq. (6) is not ruled out).
+another model's held-out pooled J is lower than eq. (6)'s by more than a margin of standard errors of the mean of
+the paired per-fold differences d_f = J_other,f − J_eq6,f (J_f the held-out pooled J of the fold's windows of that
+kind; sd(d_f) / sqrt(F) over the F folds that have such windows): one-sided at the level :data:`MARGIN_SE` = 2
+normal standard errors give, with Student's t for the F - 1 degrees of freedom of the folds' spread
+(:func:`~bayesdamper.diagnosis.attribution.se_margin`; fewer than 2 folds: no margin can be formed and eq. (6) is
+not ruled out).
 """
 
 from __future__ import annotations
@@ -50,8 +52,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.stats import norm
 
-from bayesdamper.diagnosis.attribution import _speed_keys
+from bayesdamper.diagnosis.attribution import _speed_keys, se_margin
 from bayesdamper.diagnosis.candidates import CandidateSpec, effective_sizes, fit_joint
 
 __all__ = ["ALL", "BASE", "DEFAULT_MODELS", "KINDS", "MARGIN_SE", "BaseModel", "compare_models", "comparison_text",
@@ -64,8 +67,8 @@ KINDS = ("initial", "reversal", "cycles")
 ALL = "all"
 #: The reference model the verdict asks about.
 BASE = "eq6"
-#: Another model beats eq. (6) when its held-out pooled J is lower by more than this many standard errors of the
-#: mean of the paired per-fold differences.
+#: Another model beats eq. (6) when its held-out pooled J is lower than eq. (6)'s, one-sided at the level of this
+#: many normal standard errors of the mean of the paired per-fold differences (Student's t for their number).
 MARGIN_SE = 2.0
 #: An SSE at or above this is a failed fit or solve (the engine's 1e300, or inf).
 _FAILED = 1e299
@@ -200,7 +203,8 @@ def verdict(pooled: dict, per_fold: dict, base: str = BASE, margin_se: float = M
     ``pooled``: model -> held-out pooled J; ``per_fold``: model -> per-fold held-out J (None where the fold has no
     window of the kind). Returns ``winner``, ``base_suffices`` and, per other model, ``lower_by`` (J_base − J_model,
     pooled), the paired per-fold ``mean_difference`` (J_model − J_base), its standard error ``se``, the ``margin``
-    (``margin_se`` × se; None with fewer than 2 folds), ``n_folds`` and ``clearly_better``.
+    (Student's t at the level of ``margin_se`` normal standard errors, :func:`se_margin`, × se; None with fewer than
+    2 folds), ``n_folds`` and ``clearly_better``.
     """
     finite = {m: j for m, j in pooled.items() if j is not None and math.isfinite(j)}
     winner = min(finite, key=finite.get) if finite else None
@@ -212,7 +216,7 @@ def verdict(pooled: dict, per_fold: dict, base: str = BASE, margin_se: float = M
         d = np.array([o - b for o, b in zip(per_fold.get(m) or [], per_fold.get(base) or [], strict=False)
                       if o is not None and b is not None], dtype=float)
         se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size >= 2 else math.inf
-        margin = margin_se * se
+        margin = se_margin(d.size, float(norm.sf(margin_se))) * se
         lower = jb - finite[m] if jb is not None and m in finite else None
         against[m] = {"lower_by": _num(lower), "mean_difference": _num(np.mean(d)) if d.size else None,
                       "se": _num(se), "margin": _num(margin), "n_folds": int(d.size),
@@ -382,8 +386,9 @@ def compare_models(engine, forces: list[np.ndarray], kinds: Sequence[str], speed
                    "fitted to the in-sample estimates of the training windows of its kind (their median when they "
                    "have one speed); its other own parameters at its in-sample values",
             "shared": "the shared parameters (two-state kappa, G) at their all-data values, not re-fitted per fold",
-            "margin": f"eq. (6) suffices for a kind unless another model's held-out pooled J is lower by more than "
-                      f"{MARGIN_SE:g} standard errors of the mean of the paired per-fold differences"},
+            "margin": f"eq. (6) suffices for a kind unless another model's held-out pooled J is lower, one-sided at "
+                      f"the level of {MARGIN_SE:g} normal standard errors of the mean of the paired per-fold "
+                      "differences (Student's t for the folds)"},
         "verdict": verdicts, "wall_time_s": time.perf_counter() - t0}
 
 

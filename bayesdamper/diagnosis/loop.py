@@ -6,7 +6,7 @@ the pooled eq. (9) error by at least ``MIN_J_REDUCTION`` (20 %): the base model 
 approximation, and with thousands of samples a smooth, tiny improvement of its mismatch is "significant"
 without being an effect worth adding. Out-of-sample evidence is required too: the option's
 leave-velocities-out predictive gain over the current model must be positive in every held-out fold and,
-with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed ``LOVO_SE`` = 2 standard errors (from
+with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed its margin of standard errors (Student's t: ``se_margin``; from
 ``LOVO_SIGN_TEST_FOLDS`` folds every fold better is itself the sign test at 3 %)
 (:mod:`bayesdamper.diagnosis.attribution`), a fold whose gain is an outlier among the folds' (the Hampel
 identifier: the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside
@@ -20,10 +20,9 @@ refinement that did not converge (:func:`polish_contenders`). Otherwise the answ
 stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected is refined to the reported one
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds
-keep the reported one. The search repeats until
-nothing passes (at most ``MAX_ROUNDS``); then every
-selected effect must still meet the criterion against the model without it (:func:`backward_check`: a later
-effect may explain what an earlier one approximated).
+keep the reported one. The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every selected effect
+must still meet the criterion against the model without it (:func:`backward_check`: a later effect may explain what
+an earlier one approximated).
 """
 
 from __future__ import annotations
@@ -35,12 +34,13 @@ import numpy as np
 
 from bayesdamper.diagnosis.attribution import FOLD_ITER as LOVO_FOLD_ITER
 from bayesdamper.diagnosis.attribution import (
+    LOVO_LEVEL,
     LOVO_MIN_FOLDS_FOR_SE,
-    LOVO_SE,
     LOVO_SIGN_TEST_FOLDS,
     lovo_passes,
     lovo_score,
     paired,
+    se_margin,
     velocity_folds,
 )
 from bayesdamper.diagnosis.candidates import (
@@ -169,7 +169,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it lowers the pooled J by >= :data:`MIN_J_REDUCTION`.
     For the :data:`LOVO_OPTIONS` best supported options by ΔBIC_eff, and the best other option as the runner-up, the
     leave-velocities-out gain over the current model is computed (nothing when no option is supported); the rule
-    selects, among the supported options whose gain exceeds :data:`LOVO_SE` standard errors, the one with the
+    selects, among the supported options that pass the out-of-sample rule (:func:`lovo_passes`), the one with the
     largest gain. Otherwise the round ends with "none".
 
     ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine`; ``names``: effect names or
@@ -285,7 +285,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
                                f"{MIN_J_REDUCTION:.0%}; a pair also over its better member), every held-out speed "
                                f"fold better (from {LOVO_SIGN_TEST_FOLDS} folds: the sign test at <= 3 %) and with "
-                               f"{LOVO_MIN_FOLDS_FOR_SE} folds a leave-velocities-out gain > {LOVO_SE:g} se, a fold "
+                               f"{LOVO_MIN_FOLDS_FOR_SE} folds a leave-velocities-out gain > "
+                               f"{se_margin(LOVO_MIN_FOLDS_FOR_SE):.2f} se (Student's t at {LOVO_LEVEL:.1%}), a fold "
                                "whose gain is an outlier among the folds' set aside (Hampel, 3 MADs, at most a third "
                                "of them); the largest gain wins"})
         if best is None:
@@ -409,16 +410,15 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
                         fixed: dict, current_sse, n_eff, flow_for, cache: dict) -> tuple[dict | None, dict]:
     """The generic option ``best`` against the best physical explanations (library effects and the two-state model,
     alone or in pairs): it stays selected only if its leave-velocities-out gain exceeds that of each of the
-    :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than :data:`LOVO_SE` standard errors of
-    the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: a one-sided test at about
-    2.3 % under normality, the same margin as the out-of-sample rule itself). Otherwise the physical option that
+    :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than its margin of standard errors of
+    the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: one-sided at the out-of-sample
+    rule's level, 2.3 %, Student's t with the folds' degrees of freedom). Otherwise the physical option that
     passes the rule with the largest gain is selected instead; when no rival passes (the rivals need not pass the
     rule themselves: a pair that fails its check over its better member), the :data:`LOVO_OPTIONS` best supported
     physical options are scored out of sample and the one of them that passes with the largest gain is selected,
-    or none. Without speed folds there is no
-    out-of-sample comparison: a physical option that passes wins. Returns the option selected and a record
-    (``generic``, each rival's paired gain and se, ``indistinguishable_from``, ``kept``, and ``fallback``: the
-    supported physical options scored besides, whether each passes)."""
+    or none. Without speed folds there is no out-of-sample comparison: a physical option that passes wins. Returns
+    the option selected and a record (``generic``, ``level``, each rival's paired gain, se and margin,
+    ``indistinguishable_from``, ``kept``, and ``fallback``: the supported physical options scored besides)."""
     def score(r):  # the option's leave-velocities-out score, computed once
         if "_lovo" not in r:
             fit = next(c for c in fits if c.effect == r["effect"])
@@ -429,7 +429,7 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
 
     mine = [r for r in rows if not _generic(r["effect"], specs) and not r.get("held_selected")]
     physical = sorted(mine, key=lambda r: r["score"])[:PHYSICAL_RIVALS]
-    record = {"generic": best["effect"], "margin_se": LOVO_SE, "rivals": [], "indistinguishable_from": []}
+    record = {"generic": best["effect"], "level": LOVO_LEVEL, "rivals": [], "indistinguishable_from": []}
     kept = True
     for r in physical:
         if folds is None or "_lovo" not in best:
@@ -438,9 +438,9 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
             continue
         score(r)
         pr = paired(best["_lovo"], r["_lovo"])
-        beats = bool(np.isfinite(pr["se"]) and pr["gain"] > LOVO_SE * pr["se"])
+        beats = bool(np.isfinite(pr["se"]) and pr["gain"] > pr["margin"] * pr["se"])
         record["rivals"].append({"effect": r["effect"], "passes": r["passes"], "gain_over": pr["gain"],
-                                 "se": pr["se"], "beats": beats})
+                                 "se": pr["se"], "margin_se": pr["margin"], "beats": beats})
         if not beats:
             record["indistinguishable_from"].append(r["effect"])
         kept = kept and beats
