@@ -17,9 +17,11 @@ identifier, :func:`outlying_folds`) is set aside and reported: one fold whose sp
 extrapolate to badly can neither veto an effect the other folds support nor carry one they do not. Against a
 runner-up the same is done on the paired differences of the two candidates' d_g.
 
-A gain is judged against its standard error by :func:`se_margin`: the standard error is estimated from the G folds'
-own spread, so the margin is Student's t with G - 1 degrees of freedom at the one-sided level that
-:data:`LOVO_SE` = 2 normal standard errors give (2.3 %), not the normal 2 itself (with six folds 2.65).
+Where a gain is judged against its standard error (:func:`lovo_passes` with exactly
+:data:`LOVO_MIN_FOLDS_FOR_SE` folds), the standard error is estimated from the folds' own spread, so the margin is
+Student's t with G - 1 degrees of freedom at the one-sided level that :data:`LOVO_SE` = 2 normal standard errors
+give (2.3 %: :func:`se_margin`, 3.31 se with 4 folds), not the normal 2 itself. One option beats another when their
+paired differences pass the same rule (:func:`paired`).
 """
 
 from __future__ import annotations
@@ -209,12 +211,15 @@ def se_margin(n_folds: int, level: float = LOVO_LEVEL) -> float:
 
 def paired(a: LovoScore, b: LovoScore) -> dict:
     """Gain of ``a`` over ``b`` with the standard error of the paired fold differences (outlying differences set
-    aside as in :func:`lovo_score`), their number ``n`` and the ``margin`` [se] the gain must exceed
-    (:func:`se_margin`)."""
+    aside as in :func:`lovo_score`), their number ``n``, and whether ``a`` ``beats`` ``b``: the differences pass the
+    same out-of-sample rule as an option's gains over the current model (:func:`lovo_passes`: every kept fold
+    better, and with exactly :data:`LOVO_MIN_FOLDS_FOR_SE` folds a sum above :func:`se_margin` se)."""
     diff = np.array(a.per_fold) - np.array(b.per_fold)
-    diff = diff[~outlying_folds(diff)]
-    se = float(math.sqrt(len(diff) * np.var(diff, ddof=1))) if len(diff) > 1 else float("inf")
-    return {"gain": float(diff.sum()), "se": se, "n": int(len(diff)), "margin": se_margin(len(diff))}
+    out = outlying_folds(diff)
+    kept = diff[~out]
+    se = float(math.sqrt(len(kept) * np.var(kept, ddof=1))) if len(kept) > 1 else float("inf")
+    sc = LovoScore(float(kept.sum()), se, tuple(float(d) for d in diff), tuple(bool(o) for o in out))
+    return {"gain": sc.gain, "se": se, "n": int(len(kept)), "beats": lovo_passes(sc)}
 
 
 def lovo_passes(sc) -> bool:

@@ -409,15 +409,15 @@ def _generic(label: str, specs: dict) -> bool:
 def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, engine, folds, sel_specs: list,
                         fixed: dict, current_sse, n_eff, flow_for, cache: dict) -> tuple[dict | None, dict]:
     """The generic option ``best`` against the best physical explanations (library effects and the two-state model,
-    alone or in pairs): it stays selected only if its leave-velocities-out gain exceeds that of each of the
-    :data:`PHYSICAL_RIVALS` best physical options (by ΔBIC_eff) by more than its margin of standard errors of
-    the paired fold differences (:func:`~bayesdamper.diagnosis.attribution.paired`: one-sided at the out-of-sample
-    rule's level, 2.3 %, Student's t with the folds' degrees of freedom). Otherwise the physical option that
+    alone or in pairs): it stays selected only if it beats each of the :data:`PHYSICAL_RIVALS` best physical options
+    (by ΔBIC_eff) out of sample: its per-fold gains over the rival pass the same rule as an option's gains over the
+    current model (:func:`~bayesdamper.diagnosis.attribution.paired`: every fold better, and with 4 folds a sum
+    above Student's t at 2.3 %). Otherwise the physical option that
     passes the rule with the largest gain is selected instead; when no rival passes (the rivals need not pass the
     rule themselves: a pair that fails its check over its better member), the :data:`LOVO_OPTIONS` best supported
     physical options are scored out of sample and the one of them that passes with the largest gain is selected,
     or none. Without speed folds there is no out-of-sample comparison: a physical option that passes wins. Returns
-    the option selected and a record (``generic``, ``level``, each rival's paired gain, se and margin,
+    the option selected and a record (``generic``, ``level``, each rival's paired gain, se and folds,
     ``indistinguishable_from``, ``kept``, and ``fallback``: the supported physical options scored besides)."""
     def score(r):  # the option's leave-velocities-out score, computed once
         if "_lovo" not in r:
@@ -438,9 +438,9 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
             continue
         score(r)
         pr = paired(best["_lovo"], r["_lovo"])
-        beats = bool(np.isfinite(pr["se"]) and pr["gain"] > pr["margin"] * pr["se"])
+        beats = pr["beats"]
         record["rivals"].append({"effect": r["effect"], "passes": r["passes"], "gain_over": pr["gain"],
-                                 "se": pr["se"], "margin_se": pr["margin"], "beats": beats})
+                                 "se": pr["se"], "n_folds": pr["n"], "beats": beats})
         if not beats:
             record["indistinguishable_from"].append(r["effect"])
         kept = kept and beats

@@ -328,11 +328,11 @@ def report_text(d: dict) -> str:
     for r in d.get("rounds", []):
         lr = r.get("last_resort")
         if lr:
-            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f}, margin "
-                               f"{x['margin_se']:.2f} se)" if "gain_over" in x else x["effect"]
+            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f}, {x['n_folds']} folds"
+                               + ("" if x["beats"] else ": not beaten") + ")" if "gain_over" in x else x["effect"]
                                for x in lr["rivals"]) or "none fitted"
-            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gain over "
-                         f"each, named only above its margin, one-sided at {lr['level']:.1%}): {rivals}: "
+            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gains over "
+                         f"each, named only when they pass the held-out rule): {rivals}: "
                          + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
