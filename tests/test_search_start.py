@@ -9,10 +9,9 @@ import pytest
 from bayesdamper.core.params import DynamicParameters
 from bayesdamper.diagnosis.calibrated import least_squares_optima, search_problems
 from bayesdamper.io.synthetic import write_dataset
+from bayesdamper.run.diagnose import STEPS_PER_SAMPLE as STEPS
 from bayesdamper.run.plan import plan_dataset
 
-#: The search's step cap per sample (as :data:`bayesdamper.run.diagnose.STEPS_PER_SAMPLE`).
-STEPS = 3
 #: The truth (α_V [-], p_R [Pa]) of the eq. (7) data.
 PAPER_TRUTH = (40.0, 3.0e5)
 
