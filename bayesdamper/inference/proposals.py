@@ -237,9 +237,10 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
     the crest's extrapolated position) and the drop over a step across it gives the width (:data:`RIDGE_WIDTH_DROP`).
     Steps adapt to the crest's change
     (:data:`RIDGE_STEP_NATS`); the walk ends :data:`RIDGE_DROP` nats below the best crest point, at the prior box or
-    at a failed solve. Lobes along the ridge that the pilot never reached are found this way, and the proposal puts
-    their Laplace mass there. None (and the evaluations spent) for another dimension, a degenerate pilot or a
-    crest of fewer than three points.
+    at a failed solve, the last two reached by halving the step (down to a thousandth of the pilot's sd along the
+    axis): a posterior whose mass lies against the box's edge keeps that stretch of its crest. Lobes along the ridge
+    that the pilot never reached are found this way, and the proposal puts their Laplace mass there. None (and the
+    evaluations spent) for another dimension, a degenerate pilot or a crest of fewer than three points.
     """
     from scipy.optimize import minimize_scalar
 
@@ -334,10 +335,16 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
             a_prev, b_prev, l_prev, w_prev = prev[-1]
             a_new = a_prev + direction * step
             if not a_range[0] < a_new < a_range[1]:
+                if step > min_step:  # the box's edge lies within this step: closer to it, shorter steps
+                    step /= 2.0
+                    continue
                 break
             slope = (prev[-1][1] - prev[-2][1]) / (prev[-1][0] - prev[-2][0]) if len(prev) > 1 else 0.0
             b_new, l_new, w_new = crest(a_new, b_prev + slope * (a_new - a_prev), w_prev)
             if not np.isfinite(l_new):
+                if step > min_step:  # the crest leaves the box (or the solves fail) within this step: closer to it
+                    step /= 2.0
+                    continue
                 break
             change = abs((l_new + np.log(w_new)) - (l_prev + np.log(w_prev)))
             if change > RIDGE_STEP_NATS and step > min_step:  # too coarse for the interpolation: a shorter step
