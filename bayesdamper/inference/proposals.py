@@ -334,15 +334,12 @@ def ridge_proposal(log_prob, chains: np.ndarray, chain_lp: np.ndarray, lower: np
         while len(prev) <= RIDGE_MAX_POINTS:
             a_prev, b_prev, l_prev, w_prev = prev[-1]
             a_new = a_prev + direction * step
-            if not a_range[0] < a_new < a_range[1]:
-                if step > min_step:  # the box's edge lies within this step: closer to it, shorter steps
-                    step /= 2.0
-                    continue
-                break
-            slope = (prev[-1][1] - prev[-2][1]) / (prev[-1][0] - prev[-2][0]) if len(prev) > 1 else 0.0
-            b_new, l_new, w_new = crest(a_new, b_prev + slope * (a_new - a_prev), w_prev)
-            if not np.isfinite(l_new):
-                if step > min_step:  # the crest leaves the box (or the solves fail) within this step: closer to it
+            l_new = -np.inf
+            if a_range[0] < a_new < a_range[1]:
+                slope = (prev[-1][1] - prev[-2][1]) / (prev[-1][0] - prev[-2][0]) if len(prev) > 1 else 0.0
+                b_new, l_new, w_new = crest(a_new, b_prev + slope * (a_new - a_prev), w_prev)
+            if not np.isfinite(l_new):  # the box's edge (or where the crest leaves it, or the solves fail) is near
+                if step > min_step:  # closer to it, in shorter steps
                     step /= 2.0
                     continue
                 break
