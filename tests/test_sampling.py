@@ -498,6 +498,16 @@ def _corner_ridge_x_quantiles(qs):
     return np.interp(qs, c / c[-1], x)
 
 
+def _corner_pilot(spread: float = 0.15, offset: float = 0.0):
+    """A pilot-like cloud on the corner ridge (chains (3, 50, 12, 2) and their log-densities): x from ``0.5 +
+    offset`` up the ridge, half-normal with sd ``spread``, y on the crest (inside the box)."""
+    rng = np.random.default_rng(2)
+    x = 0.5 + offset + np.abs(spread * rng.standard_normal((3, 50, 12)))
+    y = np.minimum(16.1 - 0.9 * (x - 0.5) + 0.005 * rng.standard_normal(x.shape), 16.1 - 1e-6)
+    chains = np.stack([x, y], axis=-1)
+    return chains, np.array([_corner_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
+
+
 def test_ridge_proposal_follows_a_crest_into_a_corner_of_the_box():
     """A posterior whose mass lies in a corner of the box: every line across the ridge near the corner leaves the
     box on both sides within a fraction of the crest's bracket. The crest is searched inside the box, so the ridge
@@ -508,12 +518,7 @@ def test_ridge_proposal_follows_a_crest_into_a_corner_of_the_box():
     density there, about 3 (1 - q); seed 7)."""
     from bayesdamper.inference.proposals import ridge_proposal
 
-    rng = np.random.default_rng(2)
-    x = 0.5 + np.abs(0.15 * rng.standard_normal((3, 50, 12)))
-    y = np.minimum(16.1 - 0.9 * (x - 0.5) + 0.005 * rng.standard_normal(x.shape), 16.1 - 1e-6)
-    chains = np.stack([x, y], axis=-1)
-    lps = np.array([_corner_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
-    move, n_eval = ridge_proposal(_corner_ridge_logp, chains, lps, *RIDGE_BOX)
+    move, n_eval = ridge_proposal(_corner_ridge_logp, *_corner_pilot(), *RIDGE_BOX)
     assert move is not None and n_eval > 0
     pts = move.centre + np.outer(move.a, move.axes[:, 0]) + np.outer(move.crest, move.axes[:, 1])
     assert np.all((pts > RIDGE_BOX[0]) & (pts < RIDGE_BOX[1]))
@@ -541,12 +546,7 @@ def test_ridge_proposal_walks_its_crest_to_the_edge_of_the_box():
     from bayesdamper.inference.proposals import ridge_proposal
 
     for spread, offset in ((0.15, 0.3), (0.15, 1.0), (0.5, 1.0), (1.0, 0.3), (1.0, 1.0), (0.5, 0.0)):
-        rng = np.random.default_rng(2)
-        x = 0.5 + offset + np.abs(spread * rng.standard_normal((3, 50, 12)))
-        y = np.minimum(16.1 - 0.9 * (x - 0.5) + 0.005 * rng.standard_normal(x.shape), 16.1 - 1e-6)
-        chains = np.stack([x, y], axis=-1)
-        lps = np.array([_corner_ridge_logp(z) for z in chains.reshape(-1, 2)]).reshape(x.shape)
-        move, _ = ridge_proposal(_corner_ridge_logp, chains, lps, *RIDGE_BOX)
+        move, _ = ridge_proposal(_corner_ridge_logp, *_corner_pilot(spread, offset), *RIDGE_BOX)
         assert move is not None
         q = move.draw(4000, np.random.RandomState(1))
         lw = np.array([_corner_ridge_logp(z) for z in q]) - move.log_density(q)
