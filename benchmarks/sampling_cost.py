@@ -3,7 +3,7 @@
 Every window is sampled as ``bayesdamper diagnose`` samples it (the same settings, stage-1 prior, seed and workers;
 the final model here starts from its own point fit, not from the search's optima). Printed per phase: the wall time,
 the steps and log-posterior evaluations summed over the windows, the windows converged, the smallest bulk ESS, the
-largest R-hat, and the slowest window (the pool waits for it at the end of a phase).
+largest R-hat, the windows whose Laplace-proposal run turned to the pilot route, and the slowest window (the pool waits for it at the end of a phase).
 
     python benchmarks/sampling_cost.py [DATA] [--effects DIAGNOSIS_JSON] [--workers 2] [--seed 0]
 
@@ -26,6 +26,7 @@ def _line(name: str, wall: float, results) -> str:
     return (f"{name}: {len(e)} windows in {wall:.1f} s; steps {sum(x['n_steps'] for x in e)}, evaluations "
             f"{sum(x['n_evaluations'] for x in e)}; converged {sum(bool(x['converged']) for x in e)}/{len(e)}; "
             f"min ESS {min(x['ess_bulk_min'] for x in e):.0f}, max R-hat {max(x['rhat_max'] for x in e):.4f}; "
+            f"turned to the pilot route {sum(bool(x.get('pilot_after_steps')) for x in e)}; "
             f"slowest {slow['id']} {slow['wall_s']:.1f} s ({slow['n_steps']} steps)")
 
 

@@ -12,6 +12,7 @@ from bayesdamper.inference.sampling import (
     TAU_WINDOW_C,
     SamplerSettings,
     burn_in,
+    pilot_pays,
     sample_posterior,
     tau_change_sd,
     tau_settled,
@@ -582,3 +583,49 @@ def test_tau_is_emcees_integrated_time():
             np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=1e-12)
             if n_t > 1:
                 assert np.isinf(got[1])
+
+
+def test_a_laplace_run_whose_walkers_leave_its_proposal_takes_the_pilot_route():
+    """'de+laplace' with the Laplace approximation where an optimiser stopped (on the thin ridge 16 nats down from
+    its mass; on the corner ridge half a unit up from its corner, the Laplace Gaussian's correlation -0.99 with no
+    curvature): the walkers spread along the ridge, τ grows at every check, and once going on would cost more steps
+    than the pilot route the run takes it from where the walkers are (:func:`pilot_pays`). Every run switches,
+    converges and puts x's 5/50/95 % quantiles at the exact ones (the bounds of the 'de+pilot' tests above) for under
+    a tenth of the step budget's evaluations (plain DE does not converge within the budget on the thin ridge)."""
+    thin = (_thin_ridge_logp, np.array([1.2, 16.6 - 0.47 * 1.2 - 0.106 * 1.44]), np.diag([0.05, 0.005]) ** 2,
+            _thin_ridge_x_quantiles, np.full(3, 0.06))
+    q = np.array([0.05, 0.5, 0.95])
+    corner = (_corner_ridge_logp, np.array([1.0, 16.1 - 0.9 * 0.5]),
+              np.diag([0.3, 0.27]) ** 2 * np.array([[1.0, -0.99], [-0.99, 1.0]]), _corner_ridge_x_quantiles,
+              4.0 * np.sqrt(q * (1.0 - q) / 1000.0) / (3.0 * (1.0 - q)))
+    settings = SamplerSettings(move="de+laplace", check_every=50)
+    budget = settings.max_steps * settings.n_walkers * settings.n_ensembles
+    for logp, start, scale, exact, tol in (thin, corner):
+        for seed in (7, 8, 9):
+            res = sample_posterior(logp, start, *RIDGE_BOX, settings, seed=seed, scale=scale)
+            assert res.pilot_after > 0 and res.converged, (seed, res.reason)
+            assert np.all(np.abs(np.percentile(res.flat()[:, 0], 100 * q) - exact(q)) < tol), seed
+            assert res.n_evaluations < 0.1 * budget
+
+
+def test_a_laplace_run_on_a_gaussian_ridge_keeps_its_move():
+    """On a Gaussian as thin as rig-A's (α_V, p_R) windows (correlation -0.999) with its exact Laplace approximation,
+    τ does not grow and no run gives its steps up for the pilot route; the smallest τ is near its estimate's noise
+    only, so a rule that switched on any rise of τ would switch here."""
+    cov = np.array([[1.0, -0.999], [-0.999, 1.0]]) * 0.01
+    icov = np.linalg.inv(cov)
+
+    def logp(x):
+        return -0.5 * x @ icov @ x if np.all(np.abs(x) < 1.0) else -np.inf
+
+    for seed in range(5):
+        res = sample_posterior(logp, np.zeros(2), np.full(2, -1.0), np.full(2, 1.0),
+                               SamplerSettings(move="de+laplace", check_every=50), seed=seed, scale=cov)
+        assert res.converged and res.pilot_after == 0, (seed, res.reason)
+
+
+def test_pilot_pays_when_going_on_costs_more_than_the_pilot_route():
+    """The break-even of :func:`pilot_pays`: (50 + 10) (τ_now - τ_low) against 100 pilot steps and the steps run."""
+    assert not pilot_pays(2.5, 2.0, 150)  # a stationary chain's scatter
+    assert pilot_pays(2.0 + 251.0 / 60.0, 2.0, 150) and not pilot_pays(2.0 + 249.0 / 60.0, 2.0, 150)
+    assert not pilot_pays(np.inf, 2.0, 150) and not pilot_pays(9.0, np.inf, 150)

@@ -6,7 +6,10 @@ is the integrated autocorrelation time τ: every ensemble runs until its post-bu
 than ``TAU_FACTOR`` τ for every parameter and the largest τ, which sets that length, has settled (changed
 between checks by less than ``TAU_RTOL`` or than the estimate's own sampling noise, :func:`tau_settled`). Only
 then are the rank-normalised R-hat (across ensembles) and the bulk ESS checked against ``GOOD_RHAT`` and
-``MIN_ESS``. A run that exhausts its step budget first is reported as not converged.
+``MIN_ESS``. A run that exhausts its step budget first is reported as not converged. A two-parameter run of
+``"de+laplace"`` whose τ keeps growing gives its steps up for the pilot route of ``"de+pilot"`` once that is the
+cheaper way to the stopping rule (:func:`~bayesdamper.inference.stopping.pilot_pays`); the steps given up count
+against the budget. The rules themselves are in :mod:`bayesdamper.inference.stopping`.
 """
 
 from __future__ import annotations
@@ -26,23 +29,23 @@ from bayesdamper.inference.proposals import (
     independence_acceptance,
     pilot_proposal,
 )
+from bayesdamper.inference.stopping import (
+    BURN_TAUS,
+    TAU_FACTOR,
+    TAU_NOISE_SDS,
+    TAU_RTOL,
+    TAU_WINDOW_C,
+    burn_in,
+    pilot_pays,
+    tau_change_sd,
+    tau_settled,
+)
+from bayesdamper.inference.stopping import tau_estimate as _tau
 
-__all__ = ["GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "burn_in",
-           "independence_acceptance", "initial_positions", "laplace_covariance", "pilot_proposal", "sample_posterior",
-           "tau_change_sd", "tau_settled"]
+__all__ = ["BURN_TAUS", "GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "TAU_FACTOR",
+           "TAU_NOISE_SDS", "TAU_RTOL", "TAU_WINDOW_C", "burn_in", "independence_acceptance", "initial_positions",
+           "laplace_covariance", "pilot_pays", "pilot_proposal", "sample_posterior", "tau_change_sd", "tau_settled"]
 
-#: Chain length required, in integrated autocorrelation times (emcee's documented rule of thumb).
-TAU_FACTOR = 50.0
-#: Relative change of the largest τ between two checks below which τ counts as settled (:func:`tau_settled`). The
-#: largest τ is what the length rule uses; asking every parameter's τ to settle (each a noisy estimate from a chain of
-#: some 50 τ: on a 7-parameter window of cycles they moved by 5-10 % between checks long after R-hat, ESS and the
-#: length were met) ran chains half as long again as the rule asks.
-TAU_RTOL = 0.05
-#: emcee's automatic window constant c of the τ estimate: the window M is the smallest with M >= c τ̂(M).
-TAU_WINDOW_C = 5
-#: A change of τ̂ between checks within this many standard deviations of its sampling noise counts as settled
-#: (:func:`tau_settled`): a two-sided 95 % band, so a stationary chain passes about 19 checks in 20.
-TAU_NOISE_SDS = 2.0
 #: Largest acceptable rank-normalised split R-hat across ensembles (Vehtari et al. 2021).
 GOOD_RHAT = 1.01
 #: Smallest acceptable bulk effective sample size per parameter.
@@ -50,8 +53,6 @@ MIN_ESS = 1000.0
 #: R-hat above which ensembles are taken to sit in different modes once τ has settled: more steps do
 #: not cure that, so the run stops and is reported as not converged (multimodal).
 GROSS_RHAT = 1.1
-#: Burn-in in integrated autocorrelation times (:func:`burn_in`; emcee's documentation discards "a few times τ").
-BURN_TAUS = 10
 #: Relative spread, in the transformed variables, between ensembles' independent starting balls.
 START_SPREAD = 0.05
 
@@ -78,11 +79,12 @@ class SamplerSettings:
         (log α_V, log p_R) ridges with τ about three times shorter than the stretch move on rig-A),
         ``"stretch"`` (emcee's default), ``"de+laplace"`` (``"de"`` with a share of independence
         moves from the Laplace approximation, :class:`LaplaceIndependenceMove`: for nearly Gaussian
-        posteriors such as whole records) or ``"de+pilot"`` (``"de+laplace"`` with the proposal's centre and
-        covariance from a discarded pilot run of ``"de"``, :func:`pilot_proposal`: where no reliable
-        covariance is known in advance; for two parameters whose posterior the Gaussian misses, the proposal
-        follows the ridge's crest instead,
-        :func:`~bayesdamper.inference.proposals.ridge_proposal`, and the ensembles restart from it).
+        posteriors such as whole records; with two parameters it turns to the pilot route below when τ keeps
+        growing, :func:`~bayesdamper.inference.stopping.pilot_pays`) or ``"de+pilot"`` (``"de+laplace"`` with
+        the proposal's centre and covariance from a discarded pilot run of ``"de"``, :func:`pilot_proposal`:
+        where no reliable covariance is known in advance; for two parameters whose posterior the Gaussian misses,
+        the proposal follows the ridge's crest instead, :func:`~bayesdamper.inference.proposals.ridge_proposal`,
+        and the ensembles restart from it).
     """
 
     n_ensembles: int = 3
@@ -121,6 +123,9 @@ class SamplingResult:
         Mean acceptance fraction.
     n_evaluations : int
         Log-posterior evaluations.
+    pilot_after : int
+        Steps of a ``"de+laplace"`` run given up for the pilot route of ``"de+pilot"`` (:func:`pilot_pays`); 0 where
+        none was.
     """
 
     chain: np.ndarray
@@ -134,6 +139,7 @@ class SamplingResult:
     reason: str
     acceptance: float
     n_evaluations: int
+    pilot_after: int = 0
 
     def flat(self) -> np.ndarray:
         """All post-burn-in samples, shape (n_samples, ndim)."""
@@ -224,81 +230,6 @@ def laplace_covariance(log_prob: Callable[[np.ndarray], float], x0: np.ndarray, 
     sd = np.sqrt(np.diag(cov))
     shrink = np.minimum(1.0, 0.25 * (upper - lower) / sd)
     return cov * np.outer(shrink, shrink)
-
-
-def burn_in(burn: int, n_steps: int, tau: np.ndarray) -> int:
-    """Steps discarded at a convergence check after ``n_steps``: :data:`BURN_TAUS` times the largest τ of the check
-    before (a third of the chain while τ is unknown), at most a third of the chain, and never fewer than ``burn``,
-    the last check's.
-
-    It never shrinks: τ estimated with the end of the starting transient kept comes out longer, so a burn-in that
-    followed each estimate back and forth would alternate between two values, each check's τ unlike the last, and τ
-    would never settle (a chain of 400 τ ran to its step budget so, its R-hat 1.000 and its ESS 19 times the
-    minimum).
-    """
-    if not np.all(np.isfinite(tau)):
-        return max(burn, n_steps // 3)
-    return max(burn, min(n_steps // 3, int(math.ceil(BURN_TAUS * np.max(tau)))))
-
-
-def tau_change_sd(tau: float, kept: int, added: int, n_walkers: int) -> float:
-    """Standard deviation of the change of an ensemble's τ estimate from one check to the next (``added`` steps
-    more, ``kept`` steps after the burn-in now) that sampling noise alone makes, for a chain whose τ is ``tau``.
-
-    The estimate from N draws with a window M has variance 2 (2M + 1) τ² / N (Sokal 1997, for large N); emcee
-    averages the autocorrelation of the ``n_walkers`` walkers, N = kept × walkers, and its window is M = c τ
-    (:data:`TAU_WINDOW_C`). The later estimate re-uses the earlier one's draws and adds ``added`` steps, so the two
-    differ by the variance times added / (kept - added), as two means over nested samples do.
-    """
-    if not (math.isfinite(tau) and tau > 0.0) or kept <= added or n_walkers < 1:
-        return 0.0
-    var = 2.0 * (2.0 * TAU_WINDOW_C * tau + 1.0) * tau * tau / (kept * n_walkers)
-    return math.sqrt(var * added / (kept - added))
-
-
-def tau_settled(tau: np.ndarray, tau_prev: np.ndarray | None, kept: int, added: int, n_walkers: int,
-                rtol: float = TAU_RTOL) -> bool:
-    """Has the largest τ settled between two checks? Its change is below ``rtol`` of it, or within
-    :data:`TAU_NOISE_SDS` standard deviations of the change sampling noise alone makes (:func:`tau_change_sd`).
-
-    On short chains of small τ the estimate's noise exceeds any fixed tolerance: at τ 2, 8 walkers and 150 steps
-    kept, consecutive estimates differ by about 10 % with no trend, and a 5 % rule alone passes one check in two
-    or three, running chains many times longer than the length, R-hat and ESS rules ask. On long chains the noise
-    shrinks below ``rtol``, which then decides as before.
-    """
-    if tau_prev is None:
-        return False
-    t, t_prev = float(np.max(tau)), float(np.max(tau_prev))
-    if not (math.isfinite(t) and math.isfinite(t_prev)):
-        return False
-    return abs(t - t_prev) < max(rtol * t, TAU_NOISE_SDS * tau_change_sd(t, kept, added, n_walkers))
-
-
-def _tau(chain: np.ndarray) -> np.ndarray:
-    """τ per parameter of one ensemble's chain, shape (n_steps, n_walkers, ndim).
-
-    emcee's estimate (``emcee.autocorr.integrated_time`` with ``c`` = :data:`TAU_WINDOW_C`: each walker's
-    normalised autocorrelation by FFT, averaged over the walkers, summed up to the automatic window), computed for
-    every walker and parameter in one real FFT instead of one complex FFT per walker and parameter: the checks
-    recompute it on the whole kept chain every ``check_every`` steps, which on a long chain (the drift law's, τ of
-    200 steps) cost a third of the sampling. A parameter whose walkers never moved has no defined τ; it is reported
-    as infinite, so the run cannot pass as converged.
-    """
-    from scipy import fft
-
-    n_t = chain.shape[0]
-    x = np.moveaxis(chain, 0, -1)  # (n_walkers, ndim, n_steps): each series contiguous
-    x = x - x.mean(axis=-1, keepdims=True)
-    n_fft = fft.next_fast_len(2 * n_t - 1, real=True)  # any length >= 2 n - 1 gives the linear autocorrelation
-    spec = fft.rfft(x, n=n_fft, axis=-1)
-    acf = fft.irfft(spec.real ** 2 + spec.imag ** 2, n=n_fft, axis=-1)[..., :n_t]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        taus = (2.0 * np.cumsum(np.mean(acf / acf[..., :1], axis=0), axis=-1) - 1.0).T  # (n_t, ndim)
-    tau = np.empty(taus.shape[1])
-    for d in range(taus.shape[1]):
-        short = np.arange(n_t) < TAU_WINDOW_C * taus[:, d]  # emcee's auto_window: the first M >= c τ̂(M)
-        tau[d] = taus[np.argmin(short) if np.any(short) else n_t - 1, d]
-    return np.where(np.isfinite(tau), tau, np.inf)
 
 
 def _log_prob_fn(log_prob):
@@ -396,6 +327,27 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
             return emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob.batch, moves=moves, vectorize=True)
         return emcee.EnsembleSampler(settings.n_walkers, ndim, log_prob, moves=moves)
 
+    def continued(old, name, indep=None, share=INDEPENDENCE_SHARE):
+        fresh = []
+        for s in old:
+            f = ensemble(_moves(name, indep, share))
+            f.random_state = s.random_state  # each ensemble's own stream continues
+            fresh.append(f)
+        return fresh
+
+    def run_pilot(samplers, states):
+        """The discarded pilot of DE (``samplers`` move by DE) from ``states``, then :func:`choose_pilot_proposal`:
+        the samplers of the run that follows, their starts, the pilot's steps and the other evaluations it took."""
+        n = min(PILOT_STEPS, settings.max_steps)
+        states = [_advance(s, st, n, compute) for s, st in zip(samplers, states, strict=True)]
+        chain = np.stack([s.get_chain() for s in samplers])
+        kept_lp = np.stack([s.get_log_prob() for s in samplers])[:, int(PILOT_BURN * n):]
+        indep, share, restart, n_trials, n_ridge = choose_pilot_proposal(
+            log_prob, chain, kept_lp, float(np.mean([s.acceptance_fraction for s in samplers])), lower, upper,
+            settings.n_walkers, seed)
+        return (continued(samplers, "de+laplace", indep, share), restart if restart is not None else states, n,
+                n_trials + n_ridge)
+
     pilot = settings.move == "de+pilot"
     compute = _log_prob_fn(log_prob)
     samplers, states = [], []
@@ -407,27 +359,13 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         p0 = initial_positions(start, lower, upper, settings.n_walkers, rng, scale)
         samplers.append(s)
         states.append(p0)
-    n_pilot = n_trials = n_ridge = 0
+    n_spent = n_other = pilot_after = 0  # steps outside the kept run (pilot, a given-up start); other evaluations
     # emcee refuses to start from an ensemble whose coordinates are badly conditioned (a performance heuristic, with
     # no bearing on correctness): the ball of initial_positions follows the Laplace covariance, which on a thin ridge
     # is nearly singular, and an ensemble sampling left on such a ridge is a valid state. The check is skipped; a
     # walker cloud that cannot move shows in τ and the convergence rules (:func:`_advance` makes no such check).
     if pilot:  # a discarded pilot run of DE gives the independence proposal, then held fixed
-        n_pilot = min(PILOT_STEPS, settings.max_steps)
-        states = [_advance(s, st, n_pilot, compute) for s, st in zip(samplers, states, strict=True)]
-        pilot_chain = np.stack([s.get_chain() for s in samplers])
-        half = int(PILOT_BURN * n_pilot)
-        kept_lp = np.stack([s.get_log_prob() for s in samplers])[:, half:]
-        indep, share, restart, n_trials, n_ridge = choose_pilot_proposal(
-            log_prob, pilot_chain, kept_lp, float(np.mean([s.acceptance_fraction for s in samplers])), lower, upper,
-            settings.n_walkers, seed)
-        states = restart if restart is not None else states
-        fresh = []
-        for s in samplers:
-            f = ensemble(_moves("de+laplace", indep, share))
-            f.random_state = s.random_state  # each ensemble's own stream continues
-            fresh.append(f)
-        samplers = fresh
+        samplers, states, n_spent, n_other = run_pilot(samplers, states)
 
     tau_prev = None
     reason = "step budget exhausted before τ settled"
@@ -437,14 +375,17 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
     rhat = np.full(ndim, np.inf)
     ess = np.zeros(ndim)
     burn = 0
-    while n_steps < settings.max_steps:
-        n = min(settings.check_every, settings.max_steps - n_steps)
+    budget = settings.max_steps
+    tau_low = math.inf  # the smallest finite largest-τ of the run's checks
+    while n_steps < budget:
+        n = min(settings.check_every, budget - n_steps)
         states = [_advance(s, st, n, compute) for s, st in zip(samplers, states, strict=True)]
         n_steps += n
         chains = np.stack([s.get_chain() for s in samplers])  # (E, T, W, D)
         burn = burn_in(burn, n_steps, tau)
         kept = chains[:, burn:]
         tau = np.max([_tau(c) for c in kept], axis=0)
+        tau_low = min(tau_low, float(np.max(tau)))
         long_enough = bool(np.all(kept.shape[1] > settings.tau_factor * tau))
         settled = tau_settled(tau, tau_prev, kept.shape[1], n, settings.n_walkers, settings.tau_rtol)
         tau_prev = tau
@@ -470,9 +411,16 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
             reason = "chain longer than 50 τ but τ still changing at the step budget"
         else:
             reason = f"chain only {kept.shape[1] / np.max(tau):.0f} τ long at the step budget"
+        if (settings.move == "de+laplace" and ndim == 2 and not pilot_after and n_steps < budget
+                and pilot_pays(float(np.max(tau)), tau_low, n_steps, settings.tau_factor)):
+            # the walkers are leaving the Laplace proposal's reach: the pilot route from where they are
+            pilot_after, budget = n_steps, budget - n_steps
+            samplers, states, n_pilot, n_trials = run_pilot(continued(samplers, "de"), states)
+            n_spent, n_other = n_spent + n_steps + n_pilot, n_other + n_trials
+            n_steps, burn, tau_prev, tau = 0, 0, None, np.full(ndim, np.inf)
 
     chains = np.stack([s.get_chain() for s in samplers])[:, burn:]
     log_probs = np.stack([s.get_log_prob() for s in samplers])[:, burn:]
     acc = float(np.mean([s.acceptance_fraction for s in samplers]))
     return SamplingResult(chains, log_probs, tau, rhat, ess, n_steps, burn, converged, reason, acc,
-                          (n_steps + n_pilot) * settings.n_walkers * settings.n_ensembles + n_trials + n_ridge)
+                          (n_steps + n_spent) * settings.n_walkers * settings.n_ensembles + n_other, pilot_after)

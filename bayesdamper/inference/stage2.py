@@ -134,6 +134,7 @@ def sampling_summary(res, names: tuple[str, ...], phys: np.ndarray) -> dict:
         "converged": bool(res.converged), "convergence": res.reason,
         "tau": {n: float(t) for n, t in zip(names, res.tau, strict=True)},
         "n_steps": res.n_steps, "n_evaluations": res.n_evaluations, "acceptance": res.acceptance,
+        "pilot_after_steps": res.pilot_after,
         "posterior_mean": {n: float(m) for n, m in zip(names, phys.mean(0), strict=True)},
         "posterior_sd": {n: float(s) for n, s in zip(names, phys.std(0), strict=True)},
     }
