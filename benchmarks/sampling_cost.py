@@ -3,7 +3,8 @@
 Every window is sampled as ``bayesdamper diagnose`` samples it (the same settings, stage-1 prior, seed and workers;
 the final model here starts from its own point fit, not from the search's optima). Printed per phase: the wall time,
 the steps and log-posterior evaluations summed over the windows, the windows converged, the smallest bulk ESS, the
-largest R-hat, the windows whose Laplace-proposal run turned to the pilot route, and the slowest window (the pool waits for it at the end of a phase).
+largest R-hat, the windows whose Laplace-proposal run turned to the pilot route, and the slowest window (the pool
+waits for it at the end of a phase).
 
     python benchmarks/sampling_cost.py [DATA] [--effects DIAGNOSIS_JSON] [--workers 2] [--seed 0]
 
