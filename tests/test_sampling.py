@@ -629,3 +629,15 @@ def test_pilot_pays_when_going_on_costs_more_than_the_pilot_route():
     assert not pilot_pays(2.5, 2.0, 150)  # a stationary chain's scatter
     assert pilot_pays(2.0 + 251.0 / 60.0, 2.0, 150) and not pilot_pays(2.0 + 249.0 / 60.0, 2.0, 150)
     assert not pilot_pays(np.inf, 2.0, 150) and not pilot_pays(9.0, np.inf, 150)
+
+
+def test_a_switched_run_keeps_its_step_budget_and_reports_at_its_end():
+    """The steps given up count against the budget, and a run that switched and then meets the budget reports the
+    R-hat and ESS of its kept chain there (as one that did not switch does), not the values before the switch."""
+    start = np.array([1.2, 16.6 - 0.47 * 1.2 - 0.106 * 1.44])
+    res = sample_posterior(_thin_ridge_logp, start, *RIDGE_BOX,
+                           SamplerSettings(move="de+laplace", check_every=50, max_steps=180), seed=7,
+                           scale=np.diag([0.05, 0.005]) ** 2)
+    assert res.pilot_after > 0 and not res.converged
+    assert res.pilot_after + res.n_steps <= 180
+    assert np.all(np.isfinite(res.rhat)) and np.all(res.ess_bulk > 0)

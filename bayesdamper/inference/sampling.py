@@ -114,7 +114,7 @@ class SamplingResult:
         Integrated autocorrelation time [steps], worst ensemble per parameter.
     rhat, ess_bulk : ndarray, shape (ndim,)
     n_steps : int
-        Steps run per ensemble (burn-in included).
+        Steps run per ensemble (burn-in included), not counting a pilot's or those given up (``pilot_after``).
     burn_in : int
     converged : bool
     reason : str
@@ -391,7 +391,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         tau_prev = tau
         # R-hat and ESS decide only once the chain is long enough and τ has settled; they are also reported at
         # the step budget and in the progress line (the same values a computation at every check gives there)
-        if progress is not None or (long_enough and settled) or n_steps >= settings.max_steps:
+        if progress is not None or (long_enough and settled) or n_steps >= budget:
             rhat = post.rhat_across_ensembles(kept)
             ess = post.ess_bulk(kept)
         if progress is not None:
