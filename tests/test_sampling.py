@@ -563,7 +563,7 @@ def test_tau_is_emcees_integrated_time():
     FFTs of other lengths, so rounding only."""
     import emcee
 
-    from bayesdamper.inference.sampling import TAU_WINDOW_C, _tau
+    from bayesdamper.inference.stopping import TAU_WINDOW_C, tau_estimate
 
     rng = np.random.default_rng(5)
     for n_t in (1, 2, 3, 64, 251, 3001):
@@ -577,7 +577,7 @@ def test_tau_is_emcees_integrated_time():
             with np.errstate(invalid="ignore", divide="ignore"):
                 ref = emcee.autocorr.integrated_time(x, c=TAU_WINDOW_C, tol=0, quiet=True)
             ref = np.where(np.isfinite(ref), ref, np.inf)
-            got = _tau(x)
+            got = tau_estimate(x)
             assert np.array_equal(np.isinf(got), np.isinf(ref)), (n_t, got, ref)
             fin = np.isfinite(ref)
             np.testing.assert_allclose(got[fin], ref[fin], rtol=1e-12, atol=1e-12)

@@ -189,7 +189,7 @@ def propagate(res, joint: JointLogPosterior, theta1: np.ndarray, fit: CutFit, se
     by S (θ1 − θ̂1); R-hat, ESS and τ recomputed on the moved chains (those of θ1 draws are those of
     independent draws)."""
     from bayesdamper.inference import posterior as post
-    from bayesdamper.inference.sampling import _tau
+    from bayesdamper.inference.stopping import tau_estimate
 
     space = joint.space
     idx = theta2_index(space.ndim)
@@ -215,5 +215,5 @@ def propagate(res, joint: JointLogPosterior, theta1: np.ndarray, fit: CutFit, se
     full[:, THETA1] = theta1 + d1
     full[:, THETA1[1:]] = np.maximum(full[:, THETA1[1:]], 0.0)
     chain = full.reshape(e, t, w, space.ndim)
-    tau = np.max([_tau(chain[k]) for k in range(e)], axis=0)
+    tau = np.max([tau_estimate(chain[k]) for k in range(e)], axis=0)
     return replace(res, chain=chain, tau=tau, rhat=post.rhat_across_ensembles(chain), ess_bulk=post.ess_bulk(chain))

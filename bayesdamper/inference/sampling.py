@@ -38,9 +38,9 @@ from bayesdamper.inference.stopping import (
     burn_in,
     pilot_pays,
     tau_change_sd,
+    tau_estimate,
     tau_settled,
 )
-from bayesdamper.inference.stopping import tau_estimate as _tau
 
 __all__ = ["BURN_TAUS", "GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "TAU_FACTOR",
            "TAU_NOISE_SDS", "TAU_RTOL", "TAU_WINDOW_C", "burn_in", "independence_acceptance", "initial_positions",
@@ -384,7 +384,7 @@ def sample_posterior(log_prob: Callable[[np.ndarray], float], start: np.ndarray,
         chains = np.stack([s.get_chain() for s in samplers])  # (E, T, W, D)
         burn = burn_in(burn, n_steps, tau)
         kept = chains[:, burn:]
-        tau = np.max([_tau(c) for c in kept], axis=0)
+        tau = np.max([tau_estimate(c) for c in kept], axis=0)
         tau_low = min(tau_low, float(np.max(tau)))
         long_enough = bool(np.all(kept.shape[1] > settings.tau_factor * tau))
         settled = tau_settled(tau, tau_prev, kept.shape[1], n, settings.n_walkers, settings.tau_rtol)
