@@ -7,17 +7,16 @@ from independent import ar1_noise
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER, DynamicParameters
 from bayesdamper.inference.identify import identify_window
 from bayesdamper.inference.priors import ParameterSpace
-from bayesdamper.inference.sampling import (
+from bayesdamper.inference.sampling import SamplerSettings, sample_posterior
+from bayesdamper.inference.stage2 import StageTwoSettings, shape_report
+from bayesdamper.inference.stopping import (
     TAU_RTOL,
     TAU_WINDOW_C,
-    SamplerSettings,
     burn_in,
     pilot_pays,
-    sample_posterior,
     tau_change_sd,
     tau_settled,
 )
-from bayesdamper.inference.stage2 import StageTwoSettings, shape_report
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record
 from bayesdamper.io.synthetic import simulate_record

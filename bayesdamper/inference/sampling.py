@@ -29,22 +29,10 @@ from bayesdamper.inference.proposals import (
     independence_acceptance,
     pilot_proposal,
 )
-from bayesdamper.inference.stopping import (
-    BURN_TAUS,
-    TAU_FACTOR,
-    TAU_NOISE_SDS,
-    TAU_RTOL,
-    TAU_WINDOW_C,
-    burn_in,
-    pilot_pays,
-    tau_change_sd,
-    tau_estimate,
-    tau_settled,
-)
+from bayesdamper.inference.stopping import TAU_FACTOR, TAU_RTOL, burn_in, pilot_pays, tau_estimate, tau_settled
 
-__all__ = ["BURN_TAUS", "GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "TAU_FACTOR",
-           "TAU_NOISE_SDS", "TAU_RTOL", "TAU_WINDOW_C", "burn_in", "independence_acceptance", "initial_positions",
-           "laplace_covariance", "pilot_pays", "pilot_proposal", "sample_posterior", "tau_change_sd", "tau_settled"]
+__all__ = ["GOOD_RHAT", "LaplaceIndependenceMove", "SamplerSettings", "SamplingResult", "independence_acceptance",
+           "initial_positions", "laplace_covariance", "pilot_proposal", "sample_posterior"]
 
 #: Largest acceptable rank-normalised split R-hat across ensembles (Vehtari et al. 2021).
 GOOD_RHAT = 1.01
