@@ -80,6 +80,8 @@ def _mass(text: str) -> float:
     return v
 
 
+_TMAX_HELP = ("transient window length after each velocity step [s]; a window whose ramp ends sooner (the next "
+              "velocity change or the end of the record) ends with it (default: %(default)s)")
 _MODE_HELP = ("how to window the records: auto (each record as its kind says: transients and plateaus of a "
               "triangular test, windows of whole cycles of any other record), two-stage (every record must be a "
               "triangular test) or whole-record (every record in windows of whole cycles, no stage 1) "
@@ -101,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "and a Nelder-Mead point estimate per transient. Writes nothing.")
     c.add_argument("data_dir", help="data-set folder (damper.toml and the test CSVs)")
     c.add_argument("--tmax", type=_positive_float, default=3.0,
-                   help="transient window length after each velocity step [s] (default: %(default)s)")
+                   help=_TMAX_HELP)
     c.add_argument("--no-fit", action="store_true", help="only validate and segment (default: also fit)")
     c.add_argument("--mode", default="auto", choices=["auto", "two-stage", "whole-record"],
                    help=_MODE_HELP)
@@ -146,7 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="probability mass of the reported credible intervals, in (0, 1) [-] "
                             "(default: %(default)s)")
         i.add_argument("--tmax", type=_positive_float, default=3.0,
-                       help="transient window length after each velocity step [s] (default: %(default)s)")
+                       help=_TMAX_HELP)
         i.add_argument("--workers", type=int, default=0,
                        help="worker processes [-] (default: %(default)s = all cores)")
         i.add_argument("--scheduler", default=None, metavar="ADDRESS",
@@ -195,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=_effects_help)
     g.add_argument("--workers", type=int, default=0, help="worker processes [-] (default: %(default)s = all cores)")
     g.add_argument("--tmax", type=_positive_float, default=3.0,
-                   help="transient window length after each velocity step [s] (default: %(default)s)")
+                   help=_TMAX_HELP)
     g.add_argument("--credible-mass", type=_mass, default=0.9,
                    help="probability mass of the reported credible intervals [-] (default: %(default)s)")
     g.add_argument("--max-steps", type=int, default=None,

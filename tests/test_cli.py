@@ -87,16 +87,25 @@ def test_binary_junk(rig_copy):
     assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv")
 
 
-@pytest.mark.parametrize("lines", [
-    # 7.5 s: the start from rest, the reversal at 6 s and 1.5 s of the next ramp, shorter than the 3 s window
-    1876,
-    # 1.2 s: 0.97 s at rest and 0.2 s of the first ramp, no reversal
-    300,
-])
-def test_too_short(rig_copy, lines):
-    f = rig_copy / "tri_1p00mm_s.csv"
-    f.write_text("\n".join(f.read_text().splitlines()[:lines]) + "\n")
+def test_too_short(rig_copy):
+    f = rig_copy / "tri_1p00mm_s.csv"  # 1.2 s: 0.97 s at rest and 0.2 s of the first ramp, no velocity step
+    f.write_text("\n".join(f.read_text().splitlines()[:300]) + "\n")
     assert_clean_error(run("check", rig_copy), "tri_1p00mm_s.csv")
+
+
+def test_record_that_ends_within_tmax_of_a_step(rig_copy):
+    """7.5 s of the 1 mm/s test: the start from rest, the reversal at 6 s and 1.5 s of the next ramp. The reversal's
+    window ends with the record; the record has no third transient."""
+    f = rig_copy / "tri_1p00mm_s.csv"
+    f.write_text("\n".join(f.read_text().splitlines()[:1876]) + "\n")
+    proc = run("check", rig_copy, "--no-fit")
+    assert proc.returncode == 0, proc.stderr
+    assert "32 transient(s)" in proc.stdout
+    rows = [ln.split() for ln in proc.stdout.splitlines() if ln.startswith("tri_1p00mm_s ")]
+    assert [(r[1], r[2]) for r in rows] == [("0", "initial"), ("1", "reversal")]
+    window = [float(r[6]) for r in rows]  # the "window [s]" column
+    # a window ends at the last sample within it, its step (a knot) within a sample of the first: 2 samples
+    assert window[0] == pytest.approx(3.0, abs=2 / 250) and window[1] == pytest.approx(1.5, abs=2 / 250)
 
 
 def test_bad_settings_are_one_line_errors(rig_copy, tmp_path):
@@ -137,6 +146,31 @@ def test_simulate_then_identify_one_transient(tmp_path):
     assert seg["kind"] == "initial" and seg["direction"] == 1
     assert seg["alpha_V"]["lo"] <= truth["alpha_V"] <= seg["alpha_V"]["hi"]
     assert (out / "posteriors" / "tri_1p00mm_s_s0.nc").exists()
+
+
+def test_fast_test_whose_ramps_are_shorter_than_tmax(tmp_path):
+    """4 mm/s over the simulator's 5 mm amplitude: 1.25 s out from rest and 2.5 s between reversals, both under the
+    default T_max of 3 s. Every window ends with its ramp, and the start's posterior holds the truth."""
+    data = tmp_path / "fast"
+    proc = run("simulate", data, "--velocities", "1.0,2.5,4.0", "--seed", "5", "--noise-n", "20")
+    assert proc.returncode == 0, proc.stderr
+    truth = json.loads((data / "truth.json").read_text())
+    proc = run("check", data, "--no-fit")
+    assert proc.returncode == 0, proc.stderr
+    assert "9 transient(s)" in proc.stdout
+    out = tmp_path / "res"
+    proc = run("identify", data, "--out", out, "--only", "tri_4p00mm_s_s0,tri_4p00mm_s_s1,tri_1p00mm_s_s1",
+               "--workers", "1", "--no-figures")
+    assert proc.returncode == 0, proc.stderr
+    segs = {s["id"]: s for s in json.loads((out / "summary.json").read_text())["segments"]}
+    length = {k: s["window"]["t_end_s"] - s["t_start_s"] for k, s in segs.items()}
+    rate = 250.0  # the simulator's default sample rate [Hz]: a window ends within a sample of its ramp's end
+    assert length["tri_4p00mm_s_s0"] == pytest.approx(1.25, abs=2 / rate)
+    assert length["tri_4p00mm_s_s1"] == pytest.approx(2.5, abs=2 / rate)
+    assert length["tri_1p00mm_s_s1"] == pytest.approx(3.0, abs=1 / rate)  # a 10 s ramp: T_max
+    start = segs["tri_4p00mm_s_s0"]
+    assert start["kind"] == "initial" and start["converged"]
+    assert start["alpha_V"]["lo"] <= truth["alpha_V"] <= start["alpha_V"]["hi"]
 
 
 # ----------------------------------------------------------------------------- the command line as a user meets it

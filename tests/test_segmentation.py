@@ -247,10 +247,11 @@ def test_stop_is_a_knot_but_not_a_step(make_dataset):
     np.testing.assert_allclose(seg.knot_times[1:3], [1.3, 6.3], atol=STEP_TIME_TOL_SAMPLES / fs)
     assert len(seg.plateaus) == 1
     assert seg.plateaus[0].t_end <= 6.3 - PLATEAU_MARGIN
-    # a window longer than the ramp is cut by the stop
-    _assert_data_error(
-        lambda: segment_record(seg.record, RIG_A_DAMPER, tmax=5.5), seg.record.path, "longer than the ramp"
-    )
+    # a window longer than the ramp ends at the stop: the samples from the start to the stop's knot, no further
+    long = segment_record(seg.record, RIG_A_DAMPER, tmax=5.5).transients[0]
+    stop = float(seg.knot_times[2])
+    assert long.time[-1] <= stop < long.time[-1] + 1 / fs
+    assert long.time[0] >= long.t_step and long.time.size == np.count_nonzero((t >= long.t_step) & (t <= stop))
 
 
 def test_segment_dataset_runs_every_record(make_dataset):
@@ -290,21 +291,30 @@ def test_single_ramp_without_rest_has_no_step(make_dataset):
     _assert_data_error(lambda: segment_record(rec, RIG_A_DAMPER), rec.path, "no velocity step")
 
 
-def test_window_past_end_of_record(make_dataset):
+def test_window_ends_with_the_record(make_dataset):
     t = np.arange(0.0, 4.0, 0.004)
     y = 1e-3 * np.clip(t - 1.5, 0, None)  # the ramp starts 2.5 s before the end; tmax = 3 s
-    folder = make_dataset({"short": (t, y, np.zeros(t.size))})
+    folder = make_dataset({"short": (t, y, 4000.0 * (t > 1.5))})
     rec = load_record(folder / "short.csv")
-    _assert_data_error(lambda: segment_record(rec, RIG_A_DAMPER), rec.path, "past the end", "step 0")
+    (w,) = segment_record(rec, RIG_A_DAMPER).transients
+    assert w.time[-1] == t[-1]  # every sample from the step to the last one
+    assert w.t_step == pytest.approx(1.5, abs=STEP_TIME_TOL_SAMPLES * 0.004)
 
 
-def test_tmax_longer_than_ramp(load_triangle):
-    tri = triangle(250.0, speed=2.5e-3, amplitude=5e-3)  # first ramp lasts 2 s
+def test_fast_test_windows_end_with_their_ramps(load_triangle):
+    """A test whose ramps are shorter than T_max (2.5 mm/s over 5 mm: 2 s out, 4 s between reversals): the window
+    after the start ends at the first reversal, the others after T_max; a T_max shorter than every ramp cuts none."""
+    tri = triangle(250.0, speed=2.5e-3, amplitude=5e-3)
     rec = load_triangle(tri)
-    _assert_data_error(
-        lambda: segment_record(rec, RIG_A_DAMPER, tmax=3.0), rec.path, "tmax = 3 s is longer than the ramp"
-    )
-    assert len(segment_record(rec, RIG_A_DAMPER, tmax=1.5).transients) == 3
+    seg = segment_record(rec, RIG_A_DAMPER, tmax=3.0)
+    assert [w.kind for w in seg.transients] == ["initial", "reversal", "reversal"]
+    first, *others = seg.transients
+    assert first.time[-1] <= seg.knot_times[2] < first.time[-1] + 1 / 250.0  # the first reversal's knot
+    assert seg.knot_times[2] - first.t_step == pytest.approx(2.0, abs=0.02)
+    for w in others:
+        assert w.time[-1] - w.t_step == pytest.approx(3.0, abs=1 / 250.0)
+    assert all(w.time[-1] - w.t_step == pytest.approx(1.5, abs=1 / 250.0)
+               for w in segment_record(rec, RIG_A_DAMPER, tmax=1.5).transients)
 
 
 @pytest.mark.parametrize(

@@ -36,7 +36,7 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
     transients = [w for w in plan.windows if w.kind != "cycles"]
     print(f"{len(transients)} transient(s)")
     hdr = f"{'test':<16}{'step':>5}  {'kind':<9}{'dir':>4}{'v [mm/s]':>10}{'t_step [s]':>12}" \
-          f"{'F_step [N]':>12}{'plateau F [N]':>15}"
+          f"{'window [s]':>12}{'F_step [N]':>12}{'plateau F [N]':>15}"
     print(hdr)
     print("-" * len(hdr))
     for st in data_table(ds, segs)["steps"]:
@@ -44,7 +44,7 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
         if st["plateau_force_N"] is not None and not st.get("plateau_in_stage1", True):
             pf += "  drifting: not in stage 1"
         print(f"{st['test']:<16}{st['index']:>5}  {st['kind']:<9}{st['direction']:>+4d}"
-              f"{st['velocity_m_s'] * 1e3:10.3f}{st['t_step_s']:12.3f}{st['force_N']:12.1f}{pf}")
+              f"{st['velocity_m_s'] * 1e3:10.3f}{st['t_step_s']:12.3f}{st['window_s']:12.3f}{st['force_N']:12.1f}{pf}")
     print()
     if any(st["plateau_force_N"] is not None and not st.get("plateau_in_stage1", True)
            for st in data_table(ds, segs)["steps"]):

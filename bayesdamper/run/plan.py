@@ -22,7 +22,7 @@ from pathlib import Path
 from bayesdamper.core.errors import DataError, SettingsError
 from bayesdamper.inference.plateau_noise import settled_plateaus
 from bayesdamper.inference.stage1 import fit_static
-from bayesdamper.io.dataset import check_duration, load_dataset
+from bayesdamper.io.dataset import load_dataset
 from bayesdamper.io.recordkind import inspect_record
 from bayesdamper.io.segmentation import segment_dataset
 
@@ -146,8 +146,6 @@ def plan_dataset(data_dir: str | Path, tmax: float, mode: str = AUTO) -> DataPla
                         "the two-stage method needs plateaus and velocity steps (use --mode auto or whole-record)")
     segment = [t and mode != WHOLE for t in triangular]
     seg_records = [r for r, s in zip(ds.records, segment, strict=True) if s]
-    for r in seg_records:
-        check_duration(r.path, r.duration, tmax)
     segs, static = segment_and_fit(ds, seg_records, tmax) if seg_records else ((), None)
     by_name = {s.record.name: s for s in segs}
     windows, inputs = [], {}

@@ -41,7 +41,7 @@ def run_report(data_dir: str | os.PathLike | Sequence[str | os.PathLike], out: s
         from bayesdamper.io.dataset import load_dataset
         from bayesdamper.run.conditions import one_damper, run_conditions
 
-        if one_damper([load_dataset(d, tmax=tmax) for d in dirs]) is None:  # one damper under several conditions
+        if one_damper([load_dataset(d, tmax=None) for d in dirs]) is None:  # one damper under several conditions
             joint = run_conditions([str(d) for d in dirs], str(out), seed=seed, workers=workers, tmax=tmax,
                                    credible_mass=credible_mass, max_steps=max_steps, figures=figures,
                                    mode=identify_options.get("mode", "auto"))["diagnoses"]

@@ -139,12 +139,16 @@ def data_table(ds, segs) -> dict:
     left_out = {(p.test, p.index) for s in segs for p in s.unsettled}
     steps = []
     for s in segs:
+        window = {w.index: w for w in s.transients}
         for st in s.steps:
             p = plateau.get((s.record.name, st.index))
+            w = window.get(st.index)
             steps.append({
                 "test": s.record.name, "index": int(st.index), "kind": st.kind,
                 "direction": int(st.direction), "velocity_m_s": float(abs(st.velocity_after)),
                 "t_step_s": float(st.time), "force_N": float(st.force),
+                # the transient window's length: T_max, or less where the ramp ends first
+                "window_s": float(w.time[-1] - w.t_step) if w is not None else None,
                 "plateau_force_N": (float(np.sign(st.direction) * p.pressure_drop * ds.damper.piston_area)
                                     if p else None),
                 # a plateau whose force still drifts is not a point of eq. (4): stage 1 leaves it out
