@@ -1,10 +1,12 @@
-"""Write the 33-transient triangular data sets on which ``benchmarks/diagnose_phases.py`` times a cold diagnose.
+"""Write the triangular data sets on which ``benchmarks/diagnose_phases.py`` times a cold diagnose.
 
 Every set is made by the confusion table's reference generator (``tests/test_confusion.py``: the two-state damper of
-``tests/reference_effects.py``, written apart from the effect code) at rig-A's eleven speeds (0.5-1.5 mm/s), 1.25
-triangle cycles per test, with at most one injected rig effect. The sets span the rates and sensors the toolkit
-serves: 200 Hz records with white force noise; 1 kHz, 500 Hz and 100 Hz records with noise and ADC steps on both
-channels and an unzeroed load cell (an offset in the data and in the true force).
+``tests/reference_effects.py``, written apart from the effect code), 1.25 triangle cycles per test, with at most one
+injected rig effect. Most are 33-transient sets at rig-A's eleven speeds (0.5-1.5 mm/s) and its 5 mm amplitude; they
+span the rates and sensors the toolkit serves: 200 Hz records with white force noise; 1 kHz, 500 Hz and 100 Hz
+records with noise and ADC steps on both channels and an unzeroed load cell (an offset in the data and in the true
+force). The ``fast`` sets reach faster speeds (to 2-2.5 mm/s) or a smaller amplitude, so that some ramps are shorter
+than the 3 s transient window (the window then ends with its ramp).
 
     python benchmarks/triangular_sets.py [OUT] [--only NAME ...]
     python benchmarks/diagnose_phases.py OUT/control-200Hz OUT/friction-1kHz ...
@@ -41,7 +43,10 @@ VALVE_100 = {"poppet_valve": {"natural_frequency_Hz": 2.2, "damping_ratio": 0.35
                               "span_Pa": 3.0e7}}
 FRICTION = {"seal_friction": {"stribeck_N": 200.0, "stribeck_velocity_m_s": 5.0e-3, "viscous_Ns_per_m": 10.0}}
 MOUNT = {"series_compliance": {"stiffness_N_per_m": 2.0e7}}
-#: name -> (two-state base, injected effects, channels, seed)
+FAST_SPEEDS = tuple(round(float(v), 6) for v in (0.5e-3 + 0.25e-3 * k for k in range(9)))  # 0.5-2.5 mm/s
+WIDE_SPEEDS = tuple(round(float(v), 6) for v in (0.3e-3 + (1.7e-3 / 6) * k for k in range(7)))  # 0.3-2.0 mm/s
+MOUNT_SPEEDS = tuple(round(float(v), 6) for v in (0.5e-3 + 0.25e-3 * k for k in range(7)))  # 0.5-2.0 mm/s
+#: name -> (two-state base, injected effects, channels, seed[, amplitude [m]: rig-A's 5 mm if not given])
 SETS = {
     "control-200Hz": (tc.two_state_base(1.3, "gas-a"), {}, CLEAN, 202),
     "mount-200Hz": (tc.two_state_base(1.4, "gas-a"), MOUNT, CLEAN, 202),
@@ -55,6 +60,18 @@ SETS = {
     "valve-100Hz": (tc.two_state_base(1.35, "gas-a"), VALVE_100, tc.HUNDRED_HZ, 506),
     "mount-100Hz": (tc.two_state_base(1.2, "gas-b"), {"series_compliance": {"stiffness_N_per_m": 1.5e7}},
                     tc.HUNDRED_HZ, 507),
+    "control-250Hz-fast": (tc.two_state_base(1.3, "gas-b"), {},
+                           tc.Channels(rate=250.0, speeds=WIDE_SPEEDS, force_sd=25.0, displacement_sd=0.4e-6,
+                                       force_step=3.0, displacement_step=1.0e-6, offset=-80.0), 808),
+    "control-500Hz-3mm": (tc.two_state_base(1.2, "gas-a"), {},
+                          tc.Channels(rate=500.0, speeds=SPEEDS, force_sd=12.0, displacement_sd=0.3e-6, force_step=2.0,
+                                      displacement_step=0.5e-6, offset=30.0), 809, 3.0e-3),
+    "valve-200Hz-fast": (tc.two_state_base(1.3, "gas-b"), VALVE,
+                         tc.Channels(speeds=FAST_SPEEDS, force_sd=12.0, displacement_sd=0.3e-6, force_step=2.0,
+                                     displacement_step=0.5e-6, offset=50.0), 811),
+    "mount-1kHz-4mm": (tc.two_state_base(1.2, "gas-a"), MOUNT,
+                       tc.Channels(rate=1000.0, speeds=MOUNT_SPEEDS, force_sd=10.0, displacement_sd=0.3e-6,
+                                   force_step=4.0, displacement_step=1.0e-6, offset=-120.0), 812, 4.0e-3),
 }
 
 
@@ -64,11 +81,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="+", choices=sorted(SETS), help="write only these sets")
     args = ap.parse_args(argv)
     for name in args.only or SETS:
-        base, effects, channels, seed = SETS[name]
+        base, effects, channels, seed, *amplitude = SETS[name]
         t0 = time.perf_counter()
-        folder, _ = tc._dataset(Path(args.out) / name, effects, 1.25, seed=seed, base=base, ch=channels)
-        print(f"{name}: {channels.rate:g} Hz, {len(channels.speeds)} speeds, effects {sorted(effects) or 'none'}, "
-              f"offset {channels.offset:g} N, seed {seed} -> {folder} ({time.perf_counter() - t0:.1f} s)")
+        kept, tc.AMPLITUDE = tc.AMPLITUDE, amplitude[0] if amplitude else tc.AMPLITUDE
+        try:
+            folder, _ = tc._dataset(Path(args.out) / name, effects, 1.25, seed=seed, base=base, ch=channels)
+        finally:
+            used, tc.AMPLITUDE = tc.AMPLITUDE, kept
+        print(f"{name}: {channels.rate:g} Hz, {len(channels.speeds)} speeds "
+              f"({min(channels.speeds) * 1e3:g}-{max(channels.speeds) * 1e3:g} mm/s), amplitude {used * 1e3:g} mm, "
+              f"effects {sorted(effects) or 'none'}, offset {channels.offset:g} N, seed {seed} -> {folder} "
+              f"({time.perf_counter() - t0:.1f} s)")
     return 0
 
 
