@@ -203,7 +203,8 @@ def test_the_generic_effect_is_named_only_when_it_beats_the_physics_out_of_sampl
 def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeypatch):
     """Every other candidate is screened on the two-state model held at its values, and the pairs are the best of
     that screen, even when the two-state model alone fits worse than the current model (a masked effect: a compliant
-    mount on a two-state damper) and even where the round's own ranking differs."""
+    mount on a two-state damper) and even where the round's own ranking differs; the round's best singles on eq. (7)
+    are paired too (a valve's narrow basin between the screen's grid points), the others are not."""
     import bayesdamper.diagnosis.loop as loop
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "friction", "backlash", "inertia", "leakage")}
@@ -229,8 +230,17 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
         assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
         assert sorted(screen) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
+        # the screen's best three, then friction: the round's best single (its third best, inertia, is in already;
+        # leakage is fourth there)
         assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"),
-                                           ("two_state", "backlash")]
+                                           ("two_state", "backlash"), ("two_state", "friction")]
+    # a single that did not improve on eq. (7) is not paired for it
+    calls.clear()
+    worse = [SimpleNamespace(labels=(n,), delta_bic=s, effects={n: {}}, effect=n)
+             for n, s in (("friction", +4.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
+    out, _ = loop.two_state_pairs(None, [ts, *worse], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                  Progress(False))
+    assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"), ("two_state", "backlash")]
 
 
 def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):

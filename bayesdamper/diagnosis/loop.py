@@ -59,27 +59,23 @@ from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
 SELECT_DELTA_BIC = -10.0
-#: Smallest relative reduction of the pooled eq. (9) error a selected effect must achieve (a fifth of
-#: what is left): statistical support alone would let a smooth, small improvement of a slightly
-#: mis-specified base model through (on two-state data the mis-specification looks partly like friction).
+#: Smallest relative reduction of the pooled eq. (9) error a selected effect must achieve (a fifth of what is left):
+#: statistical support alone would let a smooth, small improvement of a slightly mis-specified base model through (on
+#: two-state data the mis-specification looks partly like friction).
 MIN_J_REDUCTION = 0.2
-#: Rounds of the select-and-refit loop.
-MAX_ROUNDS = 3
+MAX_ROUNDS = 3  # rounds of the select-and-refit loop
 #: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the intervals of the
 #: option selected are computed at its optimum once it is selected (two re-fits of every window per parameter, and
 #: about 2 n² for the marginal intervals of n parameters, spared for every option that is not).
 NO_INTERVALS = -math.inf
-
-
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
 PAIR_FROM = 3
 #: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
 PHYSICAL_RIVALS = 2
 #: The generic effect (dynamics no named effect holds) and the two-state physics the loop checks first.
 GENERIC, TWO_STATE = "unnamed_dynamics", "two_state"
-#: The two-state model's refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start
-#: (:func:`two_state_pairs`): a decade below the top of the effect's own range, inside the basin where the
-#: accumulator refills.
+#: Refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start (:func:`two_state_pairs`): a decade below
+#: the top of the two-state model's own range, inside the basin where the accumulator refills.
 REFILL = "refill_conductance_m3_per_s_Pa"
 REFILL_START = EFFECTS[TWO_STATE].param(REFILL).upper / 10
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
@@ -335,16 +331,17 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
     missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
-    ΔBIC_eff are fitted jointly with it, every parameter free: from the screen's point with the two-state model as
-    fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone, also from its
-    own optimum there with the two-state model at the registry's defaults (neither was fitted with the other); and
-    with the two-state model refilling (:data:`REFILL_START`), from the screen's point and with the candidate
-    searched afresh on the refilling model (its grid and global stage, no start). Each start is refined for
-    :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
-    budget. The best fit is the option: a
-    valve's profile has several basins, and the screen's coarse grid may start it in the wrong one; a two-state model
-    that fits badly alone ends at no refill, where the refill's profile is flat, and the valve that best fits the
-    refilling model can lie in another basin than the one the screen found on the model without refill.
+    ΔBIC_eff are fitted jointly with it, and so are the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
+    narrow basin can lie between the screen's grid points), every parameter free: from the screen's point with the
+    two-state model as fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone,
+    also from its own optimum there with the two-state model at the registry's defaults (neither was fitted with the
+    other); and with the two-state model refilling (:data:`REFILL_START`), from the screen's point and with the
+    candidate searched afresh on the refilling model (its grid and global stage, no start). Each start is refined
+    for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
+    budget. The best fit is the option: a valve's profile has several basins, and the screen's coarse grid may start
+    it in the wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is
+    flat, and the valve that best fits the refilling model can lie in another basin than the one the screen found on
+    the model without refill.
     Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
     model (``{label: values}``; a later round that holds the two-state model alone screens there instead of on the
     whole grid). A pair the round has already fitted from its members' own optima (both among its best singles) is
@@ -368,7 +365,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         progress.advance()
     have = {frozenset(c.labels): c for c in fits if len(c.labels) == 2}
     out = []
-    for c in sorted(screened, key=lambda c: c.delta_bic)[:PAIR_FROM]:
+    ranked = sorted(screened, key=lambda c: c.delta_bic)
+    lead = {f.labels[0] for f in sorted((f for f in fits if len(f.labels) == 1 and f.delta_bic < 0 and specs[
+        f.labels[0]].effect != TWO_STATE), key=lambda f: f.delta_bic)[:PAIR_FROM]}  # the best singles on eq. (7)
+    for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
         pair = (ts.labels[0], c.labels[0])
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
         eff = specs[pair[1]].effect
