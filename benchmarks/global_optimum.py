@@ -54,24 +54,19 @@ def _values(d: dict, option: str | None) -> dict:
     raise SystemExit(f"no option {option!r} in the first round of the diagnosis")
 
 
-def _axes(values: dict) -> list[tuple[str, str, float, float, bool, float]]:
-    """Searched axes: (effect, parameter, lower, upper, log, sign), in transformed coordinates' bounds."""
-    from bayesdamper.physics.effects import EFFECTS
+def _axes(values: dict) -> list:
+    """Searched axes: (effect, :class:`~bayesdamper.diagnosis.spec.SearchParam`), as the profile search sees each
+    effect's required parameters; an unnamed effect's gain on the log of its magnitude with the loop's sign."""
+    from bayesdamper.diagnosis.spec import CandidateSpec, SearchParam, search_params
 
     axes = []
     for eff, vals in values.items():
-        for p in EFFECTS[eff].params:
-            if p.optional or p.name not in vals:
-                continue
-            v = float(vals[p.name])
-            if p.name == "gain" and eff == "unnamed_dynamics":
-                mag = max(abs(v), 1e-300)
-                axes.append((eff, p.name, math.log(mag) - GAIN_DECADES * math.log(10),
-                             math.log(mag) + GAIN_DECADES * math.log(10), True, math.copysign(1.0, v)))
-            elif p.log:
-                axes.append((eff, p.name, math.log(p.lower), math.log(p.upper), True, 1.0))
-            else:
-                axes.append((eff, p.name, p.lower, p.upper, False, 1.0))
+        over = {}
+        if eff == "unnamed_dynamics":
+            g = float(vals["gain"])
+            over["gain"] = SearchParam("gain", abs(g) * 10 ** -GAIN_DECADES, abs(g) * 10 ** GAIN_DECADES, True,
+                                       math.copysign(1.0, g))
+        axes += [(eff, p) for p in search_params(CandidateSpec(eff, overrides=over)) if p.name in vals]
     return axes
 
 
@@ -91,6 +86,7 @@ def main(argv=None) -> int:
 
     from bayesdamper.core.errors import BayesDamperError
     from bayesdamper.diagnosis.candidates import pooled_j
+    from bayesdamper.diagnosis.spec import _transform, _untransform
     from bayesdamper.physics.with_effects import effect_argument
     from bayesdamper.run.diagnose import prepare_diagnosis
     from bayesdamper.run.threads import one_blas_thread
@@ -98,17 +94,16 @@ def main(argv=None) -> int:
     with open(a.diagnosis, encoding="utf-8") as fh:
         values = _values(json.load(fh), a.option)
     axes = _axes(values)
-    lo = np.array([ax[2] for ax in axes])
-    hi = np.array([ax[3] for ax in axes])
+    lo = np.array([min(_transform(p, p.lower), _transform(p, p.upper)) for _, p in axes])
+    hi = np.array([max(_transform(p, p.lower), _transform(p, p.upper)) for _, p in axes])
 
     def effects_at(z):
         e = {k: dict(v) for k, v in values.items()}  # structure parameters kept
-        for (eff, name, _, _, log, sign), x in zip(axes, z, strict=True):
-            e[eff][name] = float(sign * math.exp(x) if log else x)
+        for (eff, p), x in zip(axes, z, strict=True):
+            e[eff][p.name] = float(_untransform(p, x))
         return e
 
-    z_loop = np.clip([math.log(abs(values[eff][name])) if log else values[eff][name]
-                      for eff, name, _, _, log, _ in axes], lo, hi)
+    z_loop = np.clip([_transform(p, values[eff][p.name]) for eff, p in axes], lo, hi)
     with one_blas_thread(), tempfile.TemporaryDirectory() as tmp:
         p = prepare_diagnosis(a.data, tmp, seed=a.seed, workers=a.workers, compare=False)
         engine = p.engine()
@@ -144,8 +139,8 @@ def main(argv=None) -> int:
     print(f"polished: best J {best['J']:.5f} ({count['n']} evaluations in all, {wall:.0f} s, the simplex ended "
           f"{'converged' if nm.success else 'at its budget'}); global best / loop {best['J'] / j_loop:.3f}", flush=True)
     e_best = effects_at(best["z"])
-    for eff, name, *_ in axes:
-        print(f"  {eff}.{name}: global {e_best[eff][name]:.6g}, loop {values[eff][name]:.6g}")
+    for eff, p in axes:
+        print(f"  {eff}.{p.name}: global {e_best[eff][p.name]:.6g}, loop {values[eff][p.name]:.6g}")
     return 0
 
 
