@@ -17,8 +17,13 @@ import pytest
 from independent import PAPER_FLOW, RIG_A, make_record, quasi_static_dp, triangle_input
 
 from bayesdamper.core.params import DamperConstants
-from bayesdamper.inference.plateau_noise import (SETTLED_T, _expected_lag_sums_detrended, ar1_from_segments,
-                                                   plateau_noise, settled_plateaus)
+from bayesdamper.inference.plateau_noise import (
+    SETTLED_T,
+    _expected_lag_sums_detrended,
+    ar1_from_segments,
+    plateau_noise,
+    settled_plateaus,
+)
 from bayesdamper.inference.stage1 import fit_static
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record
