@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from independent import PAPER_FLOW, RIG_A, triangle_input, white_noise
+from independent import PAPER_FLOW, RIG_A, triangle_input, white_noise, write_dataset
 from reference_effects import simulate_effects as reference_simulate
 from test_confusion import ALPHA_V, P_R, REST, TWO_STATE_GAS, TWO_STATE_LINE, two_state_base
 
@@ -35,18 +35,28 @@ TRUE_EFFECTS = {"two_state": {"polytropic_exponent": KAPPA, "refill_conductance_
                 "series_compliance": {"stiffness_N_per_m": MOUNT}}
 
 
-@pytest.fixture(scope="module")
-def segmented():
-    out = []
+def _records() -> dict:
+    """``{name: (t, y, F)}`` of the four tests."""
+    out = {}
     for k, v in enumerate(SPEEDS):
         inp = triangle_input(v, 4e-3, 0.0, REST, cycles=1.25)
         t = np.arange(0.0, inp.t_end, 1.0 / RATE)
         effects = {**two_state_base(KAPPA, "gas-a"), "series_compliance": {"stiffness_N_per_m": MOUNT}}
         clean = reference_simulate(inp, t, RIG_A, PAPER_FLOW, ALPHA_V, P_R, effects, dp0=0.0, t0=0.0, v_prev=0.0,
                                    rtol=1e-8, atol=1e-3)
-        f = clean + white_noise(t.size, SD, np.random.SeedSequence([41, k]))
-        rec = TestRecord(f"v{k}", Path(f"v{k}.csv"), t, inp.displacement(t), f, "0" * 64)
-        out.append(segment_record(rec, DAMPER, tmax=3.0))
+        out[f"v{k}"] = (t, inp.displacement(t), clean + white_noise(t.size, SD, np.random.SeedSequence([41, k])))
+    return out
+
+
+@pytest.fixture(scope="module")
+def records():
+    return _records()
+
+
+@pytest.fixture(scope="module")
+def segmented(records):
+    out = [segment_record(TestRecord(name, Path(f"{name}.csv"), t, y, f, "0" * 64), DAMPER, tmax=3.0)
+           for name, (t, y, f) in records.items()]
     return settled_plateaus(out)
 
 
@@ -117,3 +127,20 @@ def test_the_joint_problem_with_effects_solves_from_the_lead(segmented):
     force, ok = jp.simulate_window(theta)
     assert ok
     assert math.sqrt(float(np.mean((force - w.force) ** 2))) < 1.15 * SD
+
+
+def test_check_shows_where_a_window_is_solved_from(records, tmp_path):
+    """``bayesdamper check`` marks the window after an unsettled plateau with the step its models start from."""
+    import subprocess
+    import sys
+
+    folder = write_dataset(tmp_path / "leads", records, RIG_A, "reference")
+    out = subprocess.run([sys.executable, "-m", "bayesdamper", "check", str(folder)], capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr
+    row = next(line for line in out.stdout.splitlines() if line.startswith("v3") and "reversal" in line
+               and line.split()[1] == "1")
+    t_lead = next(float(line.split()[5]) for line in out.stdout.splitlines() if line.startswith("v3")
+                  and line.split()[1] == "0")
+    assert f"from the step at {t_lead:.3f} s" in row
+    assert not any("from the step at" in line for line in out.stdout.splitlines() if line.startswith("v0"))
