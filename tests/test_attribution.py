@@ -250,8 +250,9 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
     The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum,
     and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point (the leak's pair is
-    best from there) and with the candidate searched afresh, without a start (the valve's pair is best from there:
-    the refilling model's best valve lies in another basin than the screen's)."""
+    best from there), with the candidate's own optimum where it improved alone, and with the candidate searched
+    afresh, without a start (the valve's pair is best from there: the refilling model's best valve lies in another
+    basin than the screen's)."""
     import bayesdamper.diagnosis.loop as loop
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
@@ -290,7 +291,8 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
                                   Progress(False))
     key = lambda r: (r[0], -1.0 if r[1] is None else r[1])  # noqa: E731
     assert sorted(pairs, key=key) == [("leakage", None), ("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", None),
-                                      ("poppet_valve", 1.8), ("poppet_valve", 6.0), ("poppet_valve", 6.0)]
+                                      ("poppet_valve", 1.8), ("poppet_valve", 1.8), ("poppet_valve", 6.0),
+                                      ("poppet_valve", 6.0)]
     # each start refined for GLOBAL_LM_ITER iterations, the best continued to the budget, and the continuation is the
     # option where it is better
     assert sorted((lab, st[lab]["f"], st["two_state"]["score"]) for lab, st in continued) == [
@@ -299,13 +301,13 @@ def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkey
     assert best["two_state+poppet_valve"].delta_bic == -2510.0  # searched afresh on the refilling model
     assert best["two_state+leakage"].delta_bic == -310.0  # from the refilling start at the screen's point
     # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults,
-    # the screen's point with the two-state model as fitted alone but refilling
+    # the screen's point and the candidate's own optimum with the two-state model as fitted alone but refilling
     own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
     refilling = {**own, loop.REFILL: loop.REFILL_START}
     got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (key(r[0]), sorted(r[1])))
     assert got == [(("leakage", None), refilling), (("leakage", 6.0), own), (("leakage", 6.0), refilling),
-                   (("poppet_valve", None), refilling), (("poppet_valve", 1.8), defaults),
-                   (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]
+                   (("poppet_valve", None), refilling), (("poppet_valve", 1.8), refilling),
+                   (("poppet_valve", 1.8), defaults), (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]
 
 
 def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_the_pair_starts(monkeypatch):

@@ -335,8 +335,8 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     narrow basin can lie between the screen's grid points), every parameter free: from the screen's point with the
     two-state model as fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone,
     also from its own optimum there with the two-state model at the registry's defaults (neither was fitted with the
-    other); and with the two-state model refilling (:data:`REFILL_START`), from the screen's point and with the
-    candidate searched afresh on the refilling model (its grid and global stage, no start). Each start is refined
+    other); and with the two-state model refilling (:data:`REFILL_START`), from the screen's point, from that
+    optimum and with the candidate searched afresh on the refilling model (grid, global stage). Each start is refined
     for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
     budget. The best fit is the option: a valve's profile has several basins, and the screen's coarse grid may start
     it in the wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is
@@ -378,10 +378,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
             starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
         # and with the accumulator refilling: the pair's profile in the refill conductance can be bimodal, flat where
         # refill is off and a basin where it refills (rig-A), which a refinement from the flat part does not reach;
-        # from the screen's point, and with the candidate searched afresh (grid, global stage) on the refilling
-        # model, whose best valve can lie in another basin than the one screened on the model without refill
+        # from the screen's point, its own optimum on eq. (7), and searched afresh (grid, global stage) on the
+        # refilling model, whose best valve can lie in another basin than the one screened on the model without refill
         refilling = {**held[TWO_STATE], REFILL: REFILL_START}
-        starts += [(refilling, c.effects[eff]), (refilling, None)]
+        starts += [(refilling, v) for v in (c.effects[eff], None)] + [(refilling, a.effects[eff]) for a in [alone] if a]
         # each start refined for GLOBAL_LM_ITER iterations, the best then to the search's budget (as a search
         # refines its own global starts)
         tried = [search_option(engine, [specs[pair[0]], specs[pair[1]]],
