@@ -57,57 +57,15 @@ def _expected_lag_sums(phi: float, lengths: np.ndarray) -> tuple[float, float]:
     return float(num), float(den)
 
 
-def _lag_quadratic_forms(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The lag-1 quadratic forms of :func:`_expected_lag_sums` applied to the columns of ``v``: A_num v with
-    A_num the symmetric lag matrix ((v_{t-1} + v_{t+1}) / 2), and A_den v with A_den = diag(1, ..., 1, 0)."""
-    a_num = np.zeros_like(v)
-    a_num[1:] += 0.5 * v[:-1]
-    a_num[:-1] += 0.5 * v[1:]
-    a_den = v.copy()
-    a_den[-1] = 0.0
-    return a_num, a_den
-
-
-def _expected_lag_sums_detrended(phi: float, lengths: np.ndarray) -> tuple[float, float]:
-    """E[Σ x_t x_{t-1}] and E[Σ x_{t-1}²] as :func:`_expected_lag_sums`, each stretch about its own least-squares
-    line: x = M y with M = I - Q Q' (Q an orthonormal basis of a constant and a linear trend), so
-    E[x' A x] = tr(A Σ) - 2 tr(Q' A Σ Q) + tr(Q' A Q Q' Σ Q) for the unit-variance AR(1) covariance Σ = φ^|i-j|,
-    with Σ Q by a forward and a backward first-order recursion (O(n) per stretch)."""
-    from scipy.signal import lfilter
-
-    num = den = 0.0
-    for n in lengths:
-        n = int(n)
-        tt = np.arange(n, dtype=float)
-        q, _ = np.linalg.qr(np.column_stack([np.ones(n), tt - tt.mean()]))
-        fwd = lfilter([1.0], [1.0, -phi], q, axis=0)
-        bwd = lfilter([1.0], [1.0, -phi], q[::-1], axis=0)[::-1]
-        sq = fwd + bwd - q  # Σ Q
-        qsq = q.T @ sq
-        aq_num, aq_den = _lag_quadratic_forms(q)
-        num += (n - 1) * phi - 2.0 * float(np.sum(aq_num * sq)) + float(np.trace((q.T @ aq_num) @ qsq))
-        den += (n - 1) - 2.0 * float(np.sum(aq_den * sq)) + float(np.trace((q.T @ aq_den) @ qsq))
-    return float(num), float(den)
-
-
-def _detrended(s: np.ndarray) -> np.ndarray:
-    """``s`` less its least-squares line in the sample index."""
-    tt = np.arange(s.size, dtype=float) - 0.5 * (s.size - 1)
-    return s - s.mean() - tt * float(tt @ s) / float(tt @ tt)
-
-
-def ar1_from_segments(segments: list[np.ndarray], *, detrend: bool = False) -> PlateauNoise:
-    """AR(1) φ and σ_e from several stretches of noise, each about its own unknown mean (``detrend``: about its
-    own unknown line).
+def ar1_from_segments(segments: list[np.ndarray]) -> PlateauNoise:
+    """AR(1) φ and σ_e from several stretches of noise, each about its own unknown mean.
 
     The pooled least-squares lag-1 coefficient r = Σ x_t x_{t−1} / Σ x_{t−1}² of mean-removed stretches is
     biased low (by about (1 + 3φ)/n for a stretch of n samples, Marriott & Pope 1954, and by less near φ = 1,
     where that formula over-corrects two-fold at n = 300, φ = 0.97). Pooled over many stretches, numerator and
     denominator concentrate at their expectations, which are closed-form functions of φ and the stretch
     lengths (:func:`_expected_lag_sums`); φ is the root of E[num](φ)/E[den](φ) = r. σ_e² is the mean square of
-    the innovations on N − 2m degrees of freedom (a mean and a lag per stretch). With ``detrend`` each stretch
-    is taken about its least-squares line, the expectations are those of :func:`_expected_lag_sums_detrended`
-    and the degrees of freedom N − 3m.
+    the innovations on N − 2m degrees of freedom (a mean and a lag per stretch).
     """
     from scipy.optimize import brentq
 
@@ -117,7 +75,7 @@ def ar1_from_segments(segments: list[np.ndarray], *, detrend: bool = False) -> P
         s = np.asarray(s, dtype=float)
         if s.size < 5:
             continue
-        x = _detrended(s) if detrend else s - s.mean()
+        x = s - s.mean()
         xs.append(x)
         num += float(x[1:] @ x[:-1])
         den += float(x[:-1] @ x[:-1])
@@ -127,7 +85,7 @@ def ar1_from_segments(segments: list[np.ndarray], *, detrend: bool = False) -> P
     lengths = np.array([x.size for x in xs])
 
     def g(phi):
-        a, b = (_expected_lag_sums_detrended if detrend else _expected_lag_sums)(phi, lengths)
+        a, b = _expected_lag_sums(phi, lengths)
         return a / b - raw
 
     lo, hi = PHI_BOUNDS[0], 0.995
@@ -139,19 +97,18 @@ def ar1_from_segments(segments: list[np.ndarray], *, detrend: bool = False) -> P
         phi = float(brentq(g, lo, hi, xtol=1e-10))
     n, m = int(lengths.sum()), len(xs)
     ss = sum(float(np.sum((x[1:] - phi * x[:-1]) ** 2)) for x in xs)
-    sigma_e = math.sqrt(ss / max(n - (3 if detrend else 2) * m, 1))
+    sigma_e = math.sqrt(ss / max(n - 2 * m, 1))
     return PlateauNoise(phi, sigma_e, n, m)
 
 
-def plateau_noise(segmented_records, *, detrend: bool = False) -> PlateauNoise:
-    """:func:`ar1_from_segments` on the force samples of every plateau of a segmented data set (``detrend``: each
-    plateau about its own least-squares line)."""
+def plateau_noise(segmented_records) -> PlateauNoise:
+    """:func:`ar1_from_segments` on the force samples of every plateau of a segmented data set."""
     segs = []
     for s in segmented_records:
         t, f = s.record.time, s.record.force
         for p in s.plateaus:
             segs.append(f[(t >= p.t_start) & (t <= p.t_end)])
-    return ar1_from_segments(segs, detrend=detrend)
+    return ar1_from_segments(segs)
 
 
 #: |t| of a plateau's linear trend above which it is not settled (two-sided p = 0.0027 for a settled plateau:
@@ -203,11 +160,7 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
     plateau 28 N below the steady force, 14 of its standard errors, which moved stage 1's coefficients up to 6
     of their sds). Its mean is then not a point of eq. (4). The test: the linear trend of the plateau's force
     with an AR(1) standard error from the noise of all plateaus; |t| > :data:`SETTLED_T` drops it, the
-    largest |t| first, keeping at least :data:`MIN_PLATEAUS_PER_DIRECTION` per direction. That noise is the
-    scatter of each plateau about its own line: taken about each plateau's mean instead, the drifts of unsettled
-    plateaus pass for strongly correlated noise (an AR(1) φ near 1), whose wide standard error then hides the
-    very drifts the test looks for. A drift that is not a line still leaves structure about it, so the noise is
-    taken again from the plateaus kept so far and every plateau tested again, until none more is dropped.
+    largest |t| first, keeping at least :data:`MIN_PLATEAUS_PER_DIRECTION` per direction.
 
     Returns
     -------
@@ -219,25 +172,19 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
     from dataclasses import replace
 
     segmented_records = list(segmented_records)
-    plateaus = [(p, s.record) for s in segmented_records for p in s.plateaus]
-    drop: set = set()
-    while True:  # the noise of the plateaus kept so far, until no further plateau is dropped
-        kept = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop))
-                for s in segmented_records]
-        noise = plateau_noise(kept, detrend=True)
-        scored = []
-        for p, rec in plateaus:
-            sel = (rec.time >= p.t_start) & (rec.time <= p.t_end)
-            scored.append((abs(plateau_trend_t(rec.time[sel], rec.force[sel], noise)), p))
-        left = {d: sum(1 for _, p in scored if p.direction == d and (p.test, p.index) not in drop) for d in (1, -1)}
-        grown = set(drop)
-        for tval, p in sorted(scored, key=lambda x: -x[0]):
-            if (p.test, p.index) not in grown and tval > SETTLED_T and left[p.direction] > MIN_PLATEAUS_PER_DIRECTION:
-                grown.add((p.test, p.index))
-                left[p.direction] -= 1
-        if grown == drop:
-            break
-        drop = grown
+    noise = plateau_noise(segmented_records)
+    scored = []
+    for s in segmented_records:
+        t, f = s.record.time, s.record.force
+        for p in s.plateaus:
+            sel = (t >= p.t_start) & (t <= p.t_end)
+            scored.append((abs(plateau_trend_t(t[sel], f[sel], noise)), p))
+    left = {d: sum(1 for _, p in scored if p.direction == d) for d in (1, -1)}
+    drop = set()
+    for tval, p in sorted(scored, key=lambda x: -x[0]):
+        if tval > SETTLED_T and left[p.direction] > MIN_PLATEAUS_PER_DIRECTION:
+            drop.add((p.test, p.index))
+            left[p.direction] -= 1
     out = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop),
                    unsettled=tuple(p for p in s.plateaus if (p.test, p.index) in drop),
                    transients=_with_leads(s, drop))
