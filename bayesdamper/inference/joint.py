@@ -185,10 +185,6 @@ class JointProblem(ReadOnlyArrays):
         Effects added to eq. (7) (the composed kernel), held at their values; None: eq. (7) alone.
     record_drive : PiecewisePolynomial or None
         The record's whole input (effects with a memory see the history before the window); needed with effects.
-    lead_time, lead_force : float or None
-        The window's lead (:attr:`~bayesdamper.io.windows.Window.lead_time`): effects with states besides Δp are
-        solved from this earlier settled start [s] with its measured force [N]; the sampled start force then only
-        meets the samples before the step.
 
     The third sampled entry is the force at the start over A_P [Pa]: Δp0 for eq. (7) alone; with effects the
     kernel solves Δp0 so that the model's force in the steady state before the start equals it (a friction or
@@ -210,34 +206,20 @@ class JointProblem(ReadOnlyArrays):
     atol: float = 1.0
     effects: object = None
     record_drive: PiecewisePolynomial | None = None
-    lead_time: float | None = None
-    lead_force: float | None = None
 
     def __post_init__(self) -> None:
         freeze_arrays(self, ("time", "force", "pre_time", "pre_force"))
         if self.effects is not None:
-            t0 = self.t_step if self.lead is None else self.lead[0]
-            drive = self.effects.transform_input(self.record_drive).cover(t0, float(self.time[-1]))
-            v0 = drive.velocity_before(t0) if self.settled_start else float(drive.velocity(t0))
+            drive = self.effects.transform_input(self.record_drive).cover(self.t_step, float(self.time[-1]))
+            v0 = drive.velocity_before(self.t_step) if self.settled_start else float(drive.velocity(self.t_step))
             object.__setattr__(self, "_effects_input", (drive, v0))
 
     @classmethod
     def from_window(cls, window, damper: DamperConstants, prior: StageOnePrior, noise_code: int = PLATEAU,
                     effects=None, **kw) -> JointProblem:
-        if effects is not None and window.starts_settled and window.lead_time is not None:
-            kw = {"lead_time": float(window.lead_time), "lead_force": float(window.lead_force), **kw}
         return cls(window.id, window.time, window.force, window.pre_time, window.pre_force, window.t_step,
                    window.local_drive, float(window.dp0), damper, prior, noise_code, effects=effects,
                    record_drive=window.drive if effects is not None else None, **kw)
-
-    @property
-    def lead(self) -> tuple[float, float] | None:
-        """(time [s], force [N]) the effects' solve starts from when it is not the step: a lead, for effects
-        with states besides Δp (not force-only) and a settled start; else None."""
-        if (self.lead_time is None or self.effects is None or self.effects.force_only
-                or not self.settled_start):
-            return None
-        return float(self.lead_time), float(self.lead_force)
 
     @property
     def settled_start(self) -> bool:
@@ -302,8 +284,7 @@ class JointProblem(ReadOnlyArrays):
             from bayesdamper.physics.compose import solve_composed
 
             drive, v0 = self._effects_input
-            t0, start = self.lead or (self.t_step, float(theta[2]) * d.piston_area)
-            force, status = solve_composed(self.effects, self.time, drive, t0, start,
+            force, status = solve_composed(self.effects, self.time, drive, self.t_step, float(theta[2]) * d.piston_area,
                                            v0, d, np.ascontiguousarray(theta[3:7], dtype=float), math.exp(theta[0]),
                                            math.exp(theta[1]), self.rtol if rtol is None else rtol,
                                            self.atol if atol is None else atol, from_force=True)

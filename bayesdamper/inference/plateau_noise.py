@@ -131,27 +131,6 @@ def plateau_trend_t(t: np.ndarray, f: np.ndarray, noise: PlateauNoise) -> float:
     return slope / se if se > 0 else 0.0
 
 
-def _with_leads(segmented, drop: set) -> tuple:
-    """The record's transients, each reversal that starts at the end of a plateau in ``drop`` (its ramp ended with
-    the force still drifting) given the step time and step force of the last earlier transient whose start is
-    settled (a start from rest, or a reversal after a settled plateau) as its lead
-    (:attr:`~bayesdamper.io.windows.Window.lead_time`)."""
-    from dataclasses import replace
-
-    ends = sorted((p.t_end, (p.test, p.index)) for p in segmented.plateaus)
-    out, last = [], None
-    for w in segmented.transients:  # in time order
-        before = [key for t_end, key in ends if t_end <= w.t_step]
-        settled = w.kind != "reversal" or not before or before[-1] not in drop
-        if settled or last is None or not w.starts_settled:
-            out.append(replace(w, lead_time=None, lead_force=None))
-        else:
-            out.append(replace(w, lead_time=float(last.t_step), lead_force=float(np.mean(last.pre_force))))
-        if settled and w.starts_settled:
-            last = w
-    return tuple(out)
-
-
 def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, float]]]:
     """Drop the plateaus whose force still drifts: the transient has not died out within them.
 
@@ -165,8 +144,7 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
     Returns
     -------
     records : list of SegmentedRecord
-        The records with their unsettled plateaus moved from ``plateaus`` to ``unsettled``, and a lead on every
-        transient that starts at the end of an unsettled plateau (:func:`_with_leads`).
+        The records with their unsettled plateaus moved from ``plateaus`` to ``unsettled``.
     dropped : list of (test, plateau index, t)
     """
     from dataclasses import replace
@@ -186,8 +164,7 @@ def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, floa
             drop.add((p.test, p.index))
             left[p.direction] -= 1
     out = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop),
-                   unsettled=tuple(p for p in s.plateaus if (p.test, p.index) in drop),
-                   transients=_with_leads(s, drop))
+                   unsettled=tuple(p for p in s.plateaus if (p.test, p.index) in drop))
            for s in segmented_records]
     dropped = [(p.test, p.index, float(tv)) for tv, p in scored if (p.test, p.index) in drop]
     return out, dropped

@@ -153,13 +153,6 @@ class EffectsProblem(ReadOnlyArrays):
         search this way.
     free_flow : bool
         The flow coefficients are the window's own parameters (no stage 1), fitted with α_V and p_R.
-    lead_time, lead_force : float or None
-        An earlier point of the record whose start is settled [s] and its measured step force [N], for a window
-        whose own start is not: the ramp before it ended while its force still drifted towards the steady value,
-        so states of the model other than Δp (the two-state model's mean pressure, a valve's lift) are not those of
-        a steady state there. A model with such states (not :attr:`ComposedEffects.force_only`) is solved from
-        the lead through the ramp before; the residual stays the window's samples. Eq. (7) alone starts from its
-        own state, the measured step force.
 
     The window's own parameters x (:meth:`inner_box`, :meth:`simulate_inner`): (log α_V, log p_R); for a window
     that starts in motion also s0, the start force over A_P in units of :attr:`p_scale`; without stage 1 also the
@@ -179,8 +172,6 @@ class EffectsProblem(ReadOnlyArrays):
     atol: float = EFFECTS_ATOL
     max_steps: int | None = None
     free_flow: bool = False
-    lead_time: float | None = None
-    lead_force: float | None = None
     _cache: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -191,10 +182,6 @@ class EffectsProblem(ReadOnlyArrays):
         if not (self.drive.start <= self.t_step <= self.time[0]):
             raise SettingsError(f"{self.segment_id}: the input must start at or before the window, and the samples "
                                 "at or after its start")
-        if self.lead_time is not None and not (self.drive.start <= self.lead_time <= self.t_step
-                                               and self.lead_force is not None and math.isfinite(self.lead_force)):
-            raise SettingsError(f"{self.segment_id}: a lead must lie on the input before the window's start, with a "
-                                "finite force")
         area = self.damper.piston_area
         object.__setattr__(self, "p_scale", max(float(np.max(np.abs(self.force))) / area, 1.0))
         q = area * np.abs(self.drive.velocity(self.time))
@@ -206,13 +193,10 @@ class EffectsProblem(ReadOnlyArrays):
                     start_force: float | None = None, **kw) -> EffectsProblem:
         """Build from a :class:`bayesdamper.io.windows.Window`: its step force when it starts settled, else
         ``start_force`` [N] if given (else the start force is a parameter); ``flow`` None: the flow coefficients
-        are the window's own parameters; ``time``, ``force``: a subset of the window's samples. The window's lead
-        (:attr:`~bayesdamper.io.windows.Window.lead_time`) comes with it when it starts settled."""
+        are the window's own parameters; ``time``, ``force``: a subset of the window's samples."""
         step_force = float(window.dp0) * damper.piston_area if window.starts_settled else start_force
         free = flow is None
         flow = flow if flow is not None else FlowCoefficients(1.0, 1.0, 1.0, 1.0)
-        if window.starts_settled and window.lead_time is not None:
-            kw = {"lead_time": float(window.lead_time), "lead_force": float(window.lead_force), **kw}
         return cls(window.id, window.time if time is None else time, window.force if force is None else force,
                    float(window.t_step), step_force, float(window.dp0), window.drive, damper, flow, free_flow=free,
                    **kw)
@@ -273,46 +257,33 @@ class EffectsProblem(ReadOnlyArrays):
         else:
             flow4 = (flow if flow is not None else self.flow).as_array()
         drive, v_prev = self._input(effects)
-        t0, start, max_steps = self._start(effects)
-        start = v["start_force_N"] if self.free_start else start
+        start = v["start_force_N"] if self.free_start else self.step_force
         if not (math.isfinite(start) and np.all(np.isfinite(flow4))):
             return (np.full(self.time.shape, np.nan), False) + ((None,) if record else ())
-        out = solve_composed(effects, self.time, drive, t0, start, v_prev, self.damper,
+        out = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
                              np.ascontiguousarray(flow4, dtype=float), v["alpha_V"], v["p_R_Pa"], self.rtol, self.atol,
-                             from_force=True, max_steps=max_steps, record=record, replay=replay)
+                             from_force=True, max_steps=self.max_steps, record=record, replay=replay)
         return (out[0], out[1] == 0) + tuple(out[2:])
-
-    def _start(self, comp: ComposedEffects) -> tuple[float, float | None, int | None]:
-        """Where a solve of ``comp`` starts: time [s], settled start force [N] (None: in motion) and its step cap
-        (:attr:`max_steps` scaled to the longer span from a lead)."""
-        if self.lead_time is None or self.step_force is None or comp.force_only:
-            return self.t_step, self.step_force, self.max_steps
-        end = float(self.time[-1])
-        cap = None if self.max_steps is None else int(math.ceil(
-            self.max_steps * (end - self.lead_time) / max(end - self.t_step, 1e-9)))
-        return self.lead_time, self.lead_force, cap
 
     def _input(self, comp: ComposedEffects) -> tuple[PiecewisePolynomial, float]:
         key = (comp.names, comp.values.tobytes())
         hit = self._cache.get("input")
         if hit is not None and hit[0] == key:
             return hit[1]
-        t0, settled, _ = self._start(comp)
-        drive = comp.transform_input(self.drive).cover(t0, float(self.time[-1]))
-        out = (drive, drive.velocity_before(t0) if settled is not None
-               else float(drive.velocity(t0)))  # in motion: the steady state at the start's velocity
+        drive = comp.transform_input(self.drive).cover(self.t_step, float(self.time[-1]))
+        out = (drive, drive.velocity_before(self.t_step) if self.step_force is not None
+               else float(drive.velocity(self.t_step)))  # in motion: the steady state at the start's velocity
         self._cache["input"] = (key, out)
         return out
 
     def simulate_force(self, alpha_v: float, p_r: float, effects: ComposedEffects) -> tuple[np.ndarray, bool]:
         """Computed force F_C [N] at the sample times and whether the solve succeeded."""
         drive, v_prev = self._input(effects)
-        t0, step_force, max_steps = self._start(effects)
-        settled = step_force is not None
-        start = step_force if settled else self.dp0
+        settled = self.step_force is not None
+        start = self.step_force if settled else self.dp0
         if not math.isfinite(start):
             return np.full(self.time.shape, np.nan), False
-        force, status = solve_composed(effects, self.time, drive, t0, start, v_prev, self.damper,
+        force, status = solve_composed(effects, self.time, drive, self.t_step, start, v_prev, self.damper,
                                        self._flow4, float(alpha_v), float(p_r), self.rtol, self.atol,
-                                       from_force=settled, max_steps=max_steps)
+                                       from_force=settled, max_steps=self.max_steps)
         return force, status == 0

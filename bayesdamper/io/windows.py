@@ -96,11 +96,6 @@ class Window(ReadOnlyArrays):
         Bootstrap replicates of a reconstructed input (:func:`bayesdamper.io.reconstruct.bootstrap_inputs`): the
         force they move at the fitted parameters is the reconstruction's error in the force. Empty for the
         piecewise-linear fit of a triangular test.
-    lead_time, lead_force : float or None
-        For a transient whose start is not settled (the plateau before its step still drifted,
-        :func:`~bayesdamper.inference.plateau_noise.settled_plateaus`): the step time [s] and step force [N] of
-        the last earlier transient of the record whose start is, from which a model with states besides Δp is
-        solved (:class:`~bayesdamper.inference.problem.EffectsProblem`). None otherwise.
     """
 
     id: str
@@ -119,8 +114,6 @@ class Window(ReadOnlyArrays):
     pre_force: np.ndarray = field(default_factory=lambda: frozen_copy([]))
     info: dict = field(default_factory=dict)
     drive_replicates: tuple = ()
-    lead_time: float | None = None
-    lead_force: float | None = None
 
     @property
     def duration(self) -> float:

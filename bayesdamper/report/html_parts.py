@@ -183,10 +183,7 @@ def _segmentation_table(summary: Mapping, ids: set) -> str:
         rows.append([f"<b>{_e(sid)}</b>" if sid in ids else _e(sid), _e(st["kind"]),
                      f"{int(st['direction']):+d}",
                      _num(st["velocity_m_s"], ".3f", 1e3), _num(st["t_step_s"], ".3f"),
-                     _num(st.get("window_s"), ".3f")
-                     + ("" if st.get("lead_t_s") is None
-                        else f' <span class="note">from {_num(st["lead_t_s"], ".3f")} s</span>'),
-                     _num(st["force_N"], ".1f"),
+                     _num(st.get("window_s"), ".3f"), _num(st["force_N"], ".1f"),
                      _num(st.get("plateau_force_N"), ".1f")
                      + ("" if st.get("plateau_in_stage1", True) or st.get("plateau_force_N") is None
                         else ' <span class="note">drifting: not in stage 1</span>')])
@@ -195,9 +192,8 @@ def _segmentation_table(summary: Mapping, ids: set) -> str:
             "end of its ramp, where the next velocity change or the end of the record comes first), its state at the "
             "start given by the mean force of the settled samples before the step; the settled end of each ramp is "
             "a plateau, one point of the static characteristic, unless its force still drifts (linear trend "
-            "|t| &gt; 3 under the plateaus' noise): stage 1 leaves such a plateau out, and a model with states "
-            "besides &Delta;p solves the window after it from the last settled start of the record (&ldquo;from "
-            "&hellip; s&rdquo;), scored on the window alone. Bold rows were identified in this run.</p>"
+            "|t| &gt; 3 under the plateaus' noise): stage 1 leaves such a plateau out. Bold rows were identified in "
+            "this run.</p>"
             + _table(["transient (step)", "kind", "dir", "v [mm/s]", "t<sub>step</sub> [s]", "window [s]",
                       "F at step [N]", "plateau F [N]"], rows, left=2))
 

@@ -149,8 +149,6 @@ def data_table(ds, segs) -> dict:
                 "t_step_s": float(st.time), "force_N": float(st.force),
                 # the transient window's length: T_max, or less where the ramp ends first
                 "window_s": float(w.time[-1] - w.t_step) if w is not None else None,
-                # after an unsettled plateau: the settled start models with states are solved from [s]
-                "lead_t_s": float(w.lead_time) if w is not None and w.lead_time is not None else None,
                 "plateau_force_N": (float(np.sign(st.direction) * p.pressure_drop * ds.damper.piston_area)
                                     if p else None),
                 # a plateau whose force still drifts is not a point of eq. (4): stage 1 leaves it out
