@@ -113,8 +113,8 @@ class SegmentedRecord:
     knot_displacements : ndarray, shape (n_knots,)
         Fitted displacement at the knots [m]. Read-only.
     unsettled : tuple of Plateau
-        Plateaus taken out of ``plateaus`` because their force still drifts and its approach does not pin the
-        settled force (:func:`bayesdamper.inference.settle.settled_plateaus`); empty until that check has run.
+        Plateaus taken out of ``plateaus`` because their force still drifts
+        (:func:`bayesdamper.inference.settle.settled_plateaus`); empty until that check has run.
     """
 
     record: TestRecord
