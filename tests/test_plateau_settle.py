@@ -1,5 +1,5 @@
 """Plateaus whose force still approaches its settled value give stage 1 that value, or are left out
-(bayesdamper.inference.settle.settled_plateaus).
+(bayesdamper.inference.plateau_noise.settled_plateaus).
 
 Data from tests/independent.py (scipy Radau, no bayesdamper import): rig-A's damper and protocol (rest, a 5 mm
 triangle for 1.25 cycles), the paper's flow coefficients. With soft gas (α_V 25, p_R 0.5 MPa) the approach to
@@ -17,8 +17,14 @@ import pytest
 from independent import PAPER_FLOW, RIG_A, make_record, quasi_static_dp, triangle_input
 
 from bayesdamper.core.params import DamperConstants
-from bayesdamper.inference.plateau_noise import noise_plateaus, plateau_noise
-from bayesdamper.inference.settle import APPROACH_TAU_MAX, SETTLED_T, approach_fit, settled_plateaus
+from bayesdamper.inference.plateau_noise import (
+    APPROACH_TAU_MAX,
+    SETTLED_T,
+    approach_fit,
+    noise_plateaus,
+    plateau_noise,
+    settled_plateaus,
+)
 from bayesdamper.inference.stage1 import fit_static
 from bayesdamper.io.dataset import TestRecord
 from bayesdamper.io.segmentation import segment_record

@@ -77,7 +77,7 @@ class Plateau:
     approach_tau : float or None
         Where the force was still approaching its settled value within the plateau: the time constant [s] of that
         approach, and ``pressure_drop`` is the settled value it extrapolates to
-        (:func:`bayesdamper.inference.settle.settled_plateaus`). None: the force had settled and
+        (:func:`bayesdamper.inference.plateau_noise.settled_plateaus`). None: the force had settled and
         ``pressure_drop`` is the plateau's mean.
     """
 
@@ -114,7 +114,7 @@ class SegmentedRecord:
         Fitted displacement at the knots [m]. Read-only.
     unsettled : tuple of Plateau
         Plateaus taken out of ``plateaus`` because their force still drifts
-        (:func:`bayesdamper.inference.settle.settled_plateaus`); empty until that check has run.
+        (:func:`bayesdamper.inference.plateau_noise.settled_plateaus`); empty until that check has run.
     """
 
     record: TestRecord
