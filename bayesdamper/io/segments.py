@@ -74,11 +74,6 @@ class Plateau:
         Number of samples.
     t_start, t_end : float
         Plateau time span [s].
-    approach_tau : float or None
-        Where the force was still approaching its settled value within the plateau: the time constant [s] of that
-        approach, and ``pressure_drop`` is the settled value it extrapolates to
-        (:func:`bayesdamper.inference.plateau_noise.settled_plateaus`). None: the force had settled and
-        ``pressure_drop`` is the plateau's mean.
     """
 
     test: str
@@ -91,7 +86,6 @@ class Plateau:
     n: int
     t_start: float
     t_end: float
-    approach_tau: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
