@@ -376,12 +376,12 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         alone = next((f for f in fits if f.labels == (pair[1],) and f.delta_bic < 0), None)
         if alone is not None:  # its own optimum on eq. (7) too: the screen's grid point may lie in another basin
             starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
-        # and with the accumulator refilling: the pair's profile in the refill conductance can be bimodal, flat where
-        # refill is off and a basin where it refills (rig-A), which a refinement from the flat part does not reach;
-        # from the screen's point, its own optimum on eq. (7), and searched afresh (grid, global stage) on the
-        # refilling model, whose best valve can lie in another basin than the one screened on the model without refill
+        # and with the accumulator refilling (the pair's profile in the refill conductance can be bimodal, flat where
+        # refill is off, a basin where it refills, as on rig-A): from the screen's point, searched afresh (grid, global
+        # stage; its best valve can lie in another basin than the one screened without refill), its own optimum
         refilling = {**held[TWO_STATE], REFILL: REFILL_START}
-        starts += [(refilling, v) for v in (c.effects[eff], None)] + [(refilling, a.effects[eff]) for a in [alone] if a]
+        starts += [(refilling, c.effects[eff]), (refilling, None)]
+        starts += [(refilling, alone.effects[eff])] if alone is not None else []
         # each start refined for GLOBAL_LM_ITER iterations, the best then to the search's budget (as a search
         # refines its own global starts)
         tried = [search_option(engine, [specs[pair[0]], specs[pair[1]]],
