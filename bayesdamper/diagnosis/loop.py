@@ -1,28 +1,27 @@
 """The select-and-refit loop: which missing effect explains the residual, and the model calibrated with it.
 
-Stated criterion: an effect is selected only when ΔBIC_eff ≤ ``SELECT_DELTA_BIC`` = −10 ("very strong"
-evidence on the Kass & Raftery scale; ΔBIC_eff of :mod:`bayesdamper.diagnosis.candidates`) AND it lowers
-the pooled eq. (9) error by at least ``MIN_J_REDUCTION`` (20 %): the base model is itself only an
-approximation, and with thousands of samples a smooth, tiny improvement of its mismatch is "significant"
-without being an effect worth adding. Out-of-sample evidence is required too: the option's
-leave-velocities-out predictive gain over the current model must be positive in every held-out fold and,
-with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed its margin of standard errors (Student's t: ``se_margin``; from
-``LOVO_SIGN_TEST_FOLDS`` folds every fold better is itself the sign test at 3 %)
-(:mod:`bayesdamper.diagnosis.attribution`), a fold whose gain is an outlier among the folds' (the Hampel
-identifier: the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside
-and reported; among the options that pass, the largest gain wins. Options
-are single candidates, pairs of the best ones and, in the first round, pairs of the two-state model with the
-candidates that best explain what it leaves (:func:`two_state_pairs`); every option re-fits the effects already
-selected jointly with the new ones (in a later round the candidates are first screened with them held,
-:func:`screen_spec`, and the best re-fitted jointly); a pair must also meet the criterion over its better member
-alone (:func:`check_pairs`). Only the first round's singles that can still decide get the simplex that finishes a
-refinement that did not converge (:func:`polish_contenders`). Otherwise the answer is "none". The options' searches
-stop at the looser tolerance that ranking needs
-(:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected is refined to the reported one
-(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds
-keep the reported one. The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every selected effect
-must still meet the criterion against the model without it (:func:`backward_check`: a later effect may explain what
-an earlier one approximated).
+Stated criterion: an effect is selected only when ΔBIC_eff ≤ ``SELECT_DELTA_BIC`` = −10 ("very strong" evidence on
+the Kass & Raftery scale; ΔBIC_eff of :mod:`bayesdamper.diagnosis.candidates`) AND it lowers the pooled eq. (9) error
+by at least ``MIN_J_REDUCTION`` (20 %): the base model is itself only an approximation, and with thousands of samples a
+smooth, tiny improvement of its mismatch is "significant" without being an effect worth adding. Out-of-sample
+evidence is required too: the option's leave-velocities-out predictive gain over the current model must be positive
+in every held-out fold and, with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed its margin of standard errors
+(Student's t: ``se_margin``; from ``LOVO_SIGN_TEST_FOLDS`` folds every fold better is itself the sign test at 3 %)
+(:mod:`bayesdamper.diagnosis.attribution`), a fold whose gain is an outlier among the folds' (the Hampel identifier:
+the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside and reported;
+among the options that pass, the largest gain wins. Options are single candidates, pairs of the best ones and, in the
+first round, pairs of the two-state model with the candidates that best explain what it leaves
+(:func:`two_state_pairs`); every option re-fits the effects already selected jointly with the new ones (in a later
+round the candidates are first screened with them held, :func:`screen_spec`, and the best re-fitted jointly); a pair
+must also meet the criterion over its better member alone (:func:`check_pairs`). Only the first round's singles that
+can still decide get the simplex that finishes a refinement that did not converge (:func:`polish_contenders`).
+Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
+(:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected has its narrow-basin effects searched
+afresh from its optimum (:mod:`bayesdamper.diagnosis.basins`) and is refined to the reported tolerance
+(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds keep
+the reported one. The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every selected effect must
+still meet the criterion against the model without it (:func:`backward_check`: a later effect may explain what an
+earlier one approximated).
 """
 
 from __future__ import annotations
@@ -43,6 +42,7 @@ from bayesdamper.diagnosis.attribution import (
     se_margin,
     velocity_folds,
 )
+from bayesdamper.diagnosis.basins import research_basins
 from bayesdamper.diagnosis.candidates import (
     GLOBAL_LM_ITER,
     LM_ITER,
@@ -288,9 +288,11 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if best is None:
             break
         fit = next(c for c in fits if c.effect == best["effect"])
-        # the selection refined to the reported tolerance (LM_DTOL: the search stopped at LM_DTOL_SEARCH) and its
-        # intervals at that optimum: with several parameters each one's uncertainty with the others free, with one
-        # its own profile's information (one parameter: the search's bounded scalar optimum stands)
+        search_step("the selection's narrow-basin effects searched afresh")
+        fit, best["basins_afresh"] = research_basins(engine, fit, sel_specs, [specs[lab] for lab in fit.labels],
+                                                     current["sse"], n_eff, flow_for)
+        # refined to the reported tolerance (LM_DTOL; the search stopped at LM_DTOL_SEARCH), intervals there: several
+        # parameters each with the others free, one its own profile's information (its bounded scalar optimum stands)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         st = {sp.label: fit.effects[sp.effect] for sp in cand}
         several = sum(len(search_params(sp)) for sp in cand) > 1
@@ -298,9 +300,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         search_step("the selection's intervals and re-fit")
         tight = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument, new=fit.labels,
                           max_iter=None if several else 0, marginal=several)
-        if tight.delta_bic <= fit.delta_bic:  # the refinement from the search's optimum can only improve on it
-            fit = tight
-            best.update(score=tight.delta_bic, J_pooled=tight.j_pooled, J_reduction=1.0 - tight.j_pooled / j_cur)
+        fit = tight if tight.delta_bic <= fit.delta_bic else fit  # the refinement can only improve on the search
+        best.update(score=fit.delta_bic, J_pooled=fit.j_pooled, J_reduction=1.0 - fit.j_pooled / j_cur)
         best["params"] = tight.params
         best["intervals"] = ("marginal: inverse of the profile likelihood's Gauss-Newton information" if several
                              else "the profile likelihood's Gauss-Newton information")
@@ -382,8 +383,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         refilling = {**held[TWO_STATE], REFILL: REFILL_START}
         starts += [(refilling, c.effects[eff]), (refilling, None)]
         starts += [(refilling, alone.effects[eff])] if alone is not None else []
-        # each start refined for GLOBAL_LM_ITER iterations, the best then to the search's budget (as a search
-        # refines its own global starts)
+        # each start refined for GLOBAL_LM_ITER iterations, the best to the search's budget (as global starts are)
         tried = [search_option(engine, [specs[pair[0]], specs[pair[1]]],
                                {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
                                {}, current_sse, n_eff, flow_for, new=pair, max_iter=GLOBAL_LM_ITER)

@@ -336,6 +336,14 @@ def report_text(d: dict) -> str:
                          + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
+    for k, r in enumerate(d.get("rounds", [])):
+        for c in (c for c in r["candidates"] if c["effect"] == r.get("selected")):
+            for b in c.get("basins_afresh") or []:
+                lines.append(f"  round {k + 1}: {b['candidate']} of {c['effect']} searched afresh from the data's "
+                             f"starts, the option's other effects at its optimum: J {b['J_pooled']:.4f} -> "
+                             f"{b['afresh_J_pooled']:.4f} (delta-BIC_eff {b['delta_BIC_eff']:+.0f} -> "
+                             f"{b['afresh_delta_BIC_eff']:+.0f}): " + ("another basin, which replaces the option's fit"
+                                                                      if b["replaced"] else "the option's fit stands"))
     for r in (d.get("rounds") or [])[-1:]:
         for b in r.get("backward_check") or []:
             lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "

@@ -1,0 +1,72 @@
+"""Does the option a round selects sit in its form's best basin? Its narrow-basin effects searched afresh.
+
+An option's search starts where the loop's screens put it: a pair with the two-state model, say, from the valve's best
+grid point on the two-state model as the screen fitted it alone, or from the valve's optimum on eq. (7). A valve's
+profile has several basins (rings or not, opens or not, chatters or not; :mod:`bayesdamper.diagnosis.global_stage`),
+and which one the refinement ends in depends on where the other effects stood while the valve's starts were ranked: a
+change of stage 1's coefficients by a percent can move a pair's valve from its true cracking pressure and span to a
+basin a decade away at twice the true model's J.
+
+So once a round has selected an option, each of its new effects that has narrow-basin parameters
+(:func:`~bayesdamper.diagnosis.global_stage.narrow_kind`) is searched again from nothing (grid and global stage) with
+every other effect of the option, and the effects selected before, starting at the option's optimum and re-fitted
+jointly (:func:`research_basins`). It is searched from the data's starts alone (the spectral peaks of the current
+residual, the quantiles and range of |Δp|: :func:`~bayesdamper.diagnosis.global_stage.global_starts`), not from the
+residual signature's (part 1's poles, onsets and time constants), which the option's own search already had: the
+signature reads the baseline's residual, whose ringing need not be the missing element's own pole (a valve's
+underdamped-looking residual pole led a search afresh to a valve five times its natural frequency, the data's starts
+to the true one). The search replaces the option's fit only when its evidence is very strong, ΔBIC_eff lower by more
+than |:data:`REPLACE_DELTA_BIC`| (both fits carry the same parameters, so this is a difference of fit alone): a fit
+the option already reached is not replaced by one that differs from it only by the search's tolerance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint, search_params
+from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
+from bayesdamper.diagnosis.global_stage import narrow_kind
+from bayesdamper.physics.with_effects import effect_argument
+
+#: ΔBIC_eff by which a search afresh must beat the option's own fit to replace it (the loop's SELECT_DELTA_BIC,
+#: -10: "very strong" on the Kass & Raftery scale).
+REPLACE_DELTA_BIC = -10.0
+
+
+def has_narrow(spec: CandidateSpec) -> bool:
+    """The candidate has a parameter whose profile has narrow basins (a frequency, damping, threshold, span...)."""
+    return any(narrow_kind(spec.effect, p.name) for p in search_params(spec))
+
+
+def data_starts(spec: CandidateSpec) -> CandidateSpec:
+    """``spec`` without the signature's starts (``starts``, ``poles``, ``thresholds``, ``points``): its global stage
+    then starts from the data alone (its search boxes and fixed structure kept)."""
+    return dataclasses.replace(spec, starts={}, poles=(), thresholds=(), points=())
+
+
+def research_basins(engine, fit, held: list[CandidateSpec], new: list[CandidateSpec], current_sse, n_eff,
+                    flow_for) -> tuple[object, list[dict]]:
+    """The option ``fit`` (``held``: the effects selected before, re-fitted with it; ``new``: its own candidates)
+    with each narrow-basin candidate of ``new`` searched afresh from the data's starts (:func:`data_starts`), the
+    others starting at the option's optimum.
+
+    Returns the better fit (the option's own unless a search afresh lowers ΔBIC_eff by more than
+    |:data:`REPLACE_DELTA_BIC`|) and a row per search afresh for the report: the candidate, ΔBIC_eff and pooled J of
+    the option and of the search, and whether the search replaced it."""
+    cand = held + new
+    labels = tuple(sp.label for sp in new)
+    rows = []
+    for sp in (s for s in new if has_narrow(s)):
+        start = {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp}
+        specs = [data_starts(sp) if o is sp else o for o in cand]
+        again = fit_joint(engine, specs, start, {}, current_sse, n_eff, flow_for, effect_argument, new=labels,
+                          intervals_to=-math.inf, dtol=LM_DTOL_SEARCH)
+        better = again.delta_bic - fit.delta_bic < REPLACE_DELTA_BIC
+        rows.append({"candidate": sp.label, "delta_BIC_eff": float(fit.delta_bic), "J_pooled": float(fit.j_pooled),
+                     "afresh_delta_BIC_eff": float(again.delta_bic), "afresh_J_pooled": float(again.j_pooled),
+                     "replaced": bool(better)})
+        if better:
+            fit = again
+    return fit, rows
