@@ -28,7 +28,7 @@ def test_narrow_kinds_decide_which_candidates_are_searched_afresh():
 
 
 @pytest.mark.parametrize(("afresh", "replaced"), [(-1500.0, True), (-1005.0, False), (-900.0, False)])
-def test_a_search_afresh_replaces_the_option_only_by_very_strong_evidence(monkeypatch, afresh, replaced):
+def test_a_search_afresh_replaces_the_option_only_by_very_strong_evidence(afresh, replaced):
     """The option at ΔBIC_eff −1000 against a search afresh at ``afresh``: replaced only when more than 10 lower
     (−1005 is better, but within the margin a search's tolerance can give)."""
     calls = []
@@ -36,24 +36,22 @@ def test_a_search_afresh_replaces_the_option_only_by_very_strong_evidence(monkey
                                                      "poppet_valve": {**OPTION["poppet_valve"],
                                                                       "cracking_pressure_Pa": 1.5e4}})
 
-    def fake_fit_joint(engine, cand, start, fixed, sse, n_eff, flow_for, pack, **kw):
-        calls.append((tuple(sp.label for sp in cand), start, kw["new"]))
+    def search(cand, start):
+        calls.append((tuple(sp.label for sp in cand), start))
         return found
 
-    monkeypatch.setattr(basins, "fit_joint", fake_fit_joint)
     option = _fit("two_state+poppet_valve", -1000.0, OPTION)
     new = [CandidateSpec("two_state"), CandidateSpec("poppet_valve")]
-    out, rows = basins.research_basins(None, option, [], new, None, None, None)
+    out, rows = basins.research_basins(search, option, [], new)
     # one search afresh: the valve's; the two-state model (no narrow parameter) starts at the option's optimum
-    assert calls == [(("two_state", "poppet_valve"), {"two_state": OPTION["two_state"]},
-                      ("two_state", "poppet_valve"))]
+    assert calls == [(("two_state", "poppet_valve"), {"two_state": OPTION["two_state"]})]
     assert out is (found if replaced else option)
     assert rows == [{"candidate": "poppet_valve", "delta_BIC_eff": -1000.0,
                      "J_pooled": option.j_pooled, "afresh_delta_BIC_eff": afresh,
                      "afresh_J_pooled": found.j_pooled, "replaced": replaced}]
 
 
-def test_effects_selected_before_start_at_the_option_and_each_narrow_candidate_is_searched(monkeypatch):
+def test_effects_selected_before_start_at_the_option_and_each_narrow_candidate_is_searched():
     """A later round's option (the valve selected before, a servo and a mount new): the servo alone is searched
     afresh, the valve and the mount start at the option's values; a replacement carries into the next search."""
     seen = []
@@ -61,34 +59,31 @@ def test_effects_selected_before_start_at_the_option_and_each_narrow_candidate_i
                                                                                       "damping_ratio": 0.3},
                "series_compliance": {"stiffness_N_per_m": 2e7}}
 
-    def fake_fit_joint(engine, cand, start, fixed, sse, n_eff, flow_for, pack, **kw):
+    def search(cand, start):
         seen.append(sorted(start))
         return _fit("command_displacement+series_compliance", -2000.0, effects)
 
-    monkeypatch.setattr(basins, "fit_joint", fake_fit_joint)
     option = _fit("command_displacement+series_compliance", -1000.0, effects)
-    out, rows = basins.research_basins(None, option, [CandidateSpec("poppet_valve")],
-                                       [CandidateSpec("command_displacement"), CandidateSpec("series_compliance")],
-                                       None, None, None)
+    out, rows = basins.research_basins(search, option, [CandidateSpec("poppet_valve")],
+                                       [CandidateSpec("command_displacement"), CandidateSpec("series_compliance")])
     assert seen == [["poppet_valve", "series_compliance"]]
     assert [r["candidate"] for r in rows] == ["command_displacement"] and rows[0]["replaced"]
     assert out.delta_bic == -2000.0
 
 
-def test_a_candidate_with_signature_starts_is_searched_afresh_from_the_data_alone(monkeypatch):
+def test_a_candidate_with_signature_starts_is_searched_afresh_from_the_data_alone():
     """The valve with part 1's poles, onsets and starts, and an earlier round's point: searched afresh without them,
     its search boxes and fixed structure kept."""
     seen = []
 
-    def fake_fit_joint(engine, cand, start, fixed, sse, n_eff, flow_for, pack, **kw):
+    def search(cand, start):
         seen.append(cand[-1])
         return _fit("two_state+poppet_valve", -1500.0, OPTION)
 
-    monkeypatch.setattr(basins, "fit_joint", fake_fit_joint)
     valve = CandidateSpec("poppet_valve", extra={"bleed_fraction": 0.2}, poles=((1.66, 0.17),), thresholds=(3e4,),
                           starts={"natural_frequency_Hz": (1.66,)}, points=({"span_Pa": 1e6},))
-    out, rows = basins.research_basins(None, _fit("two_state+poppet_valve", -1000.0, OPTION), [],
-                                       [CandidateSpec("two_state"), valve], None, None, None)
+    out, rows = basins.research_basins(search, _fit("two_state+poppet_valve", -1000.0, OPTION), [],
+                                       [CandidateSpec("two_state"), valve])
     assert seen == [CandidateSpec("poppet_valve", extra={"bleed_fraction": 0.2})]
     assert [r["replaced"] for r in rows] == [True] and out.delta_bic == -1500.0
 
@@ -101,11 +96,13 @@ def test_on_a_valve_the_search_afresh_leaves_a_wrong_basin(tmp_path):
     option scored where it stands) is replaced by the search afresh, which comes within 1.5 times the true model's J
     (the form is the library's); the search afresh from that fit does not replace it again (the margin)."""
     import math
+    from functools import partial
 
     import test_confusion as tc
 
     from bayesdamper.diagnosis.candidates import effective_sizes, fit_joint
     from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
+    from bayesdamper.diagnosis.loop import search_option
     from bayesdamper.physics.with_effects import effect_argument
     from bayesdamper.run.diagnose import prepare_diagnosis
 
@@ -123,8 +120,10 @@ def test_on_a_valve_the_search_afresh_leaves_a_wrong_basin(tmp_path):
         option = fit_joint(engine, specs, wrong, {}, sse, n_eff, p.flow_for, effect_argument,
                            new=("two_state", "poppet_valve"), max_iter=0, intervals_to=-math.inf,
                            dtol=LM_DTOL_SEARCH)
-        out, rows = basins.research_basins(engine, option, [], specs, sse, n_eff, p.flow_for)
-        again, rows2 = basins.research_basins(engine, out, [], specs, sse, n_eff, p.flow_for)
+        search = partial(search_option, engine, fixed={}, current_sse=sse, n_eff=n_eff, flow_for=p.flow_for,
+                         new=("two_state", "poppet_valve"))
+        out, rows = basins.research_basins(search, option, [], specs)
+        again, rows2 = basins.research_basins(search, out, [], specs)
     finally:
         engine.close()
     num = den = 0.0

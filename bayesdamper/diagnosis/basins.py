@@ -23,12 +23,9 @@ the option already reached is not replaced by one that differs from it only by t
 from __future__ import annotations
 
 import dataclasses
-import math
 
-from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint, search_params
-from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
+from bayesdamper.diagnosis.candidates import CandidateSpec, search_params
 from bayesdamper.diagnosis.global_stage import narrow_kind
-from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC_eff by which a search afresh must beat the option's own fit to replace it (the loop's SELECT_DELTA_BIC,
 #: -10: "very strong" on the Kass & Raftery scale).
@@ -46,23 +43,20 @@ def data_starts(spec: CandidateSpec) -> CandidateSpec:
     return dataclasses.replace(spec, starts={}, poles=(), thresholds=(), points=())
 
 
-def research_basins(engine, fit, held: list[CandidateSpec], new: list[CandidateSpec], current_sse, n_eff,
-                    flow_for) -> tuple[object, list[dict]]:
+def research_basins(search, fit, held: list[CandidateSpec], new: list[CandidateSpec]) -> tuple[object, list[dict]]:
     """The option ``fit`` (``held``: the effects selected before, re-fitted with it; ``new``: its own candidates)
     with each narrow-basin candidate of ``new`` searched afresh from the data's starts (:func:`data_starts`), the
-    others starting at the option's optimum.
+    others starting at the option's optimum. ``search(specs, start)``: the loop's search of an option
+    (:func:`bayesdamper.diagnosis.loop.search_option`, scored against the current model, ``new``'s labels new).
 
     Returns the better fit (the option's own unless a search afresh lowers ΔBIC_eff by more than
     |:data:`REPLACE_DELTA_BIC`|) and a row per search afresh for the report: the candidate, ΔBIC_eff and pooled J of
     the option and of the search, and whether the search replaced it."""
     cand = held + new
-    labels = tuple(sp.label for sp in new)
     rows = []
     for sp in (s for s in new if has_narrow(s)):
-        start = {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp}
-        specs = [data_starts(sp) if o is sp else o for o in cand]
-        again = fit_joint(engine, specs, start, {}, current_sse, n_eff, flow_for, effect_argument, new=labels,
-                          intervals_to=-math.inf, dtol=LM_DTOL_SEARCH)
+        again = search([data_starts(sp) if o is sp else o for o in cand],
+                       {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp})
         better = again.delta_bic - fit.delta_bic < REPLACE_DELTA_BIC
         rows.append({"candidate": sp.label, "delta_BIC_eff": float(fit.delta_bic), "J_pooled": float(fit.j_pooled),
                      "afresh_delta_BIC_eff": float(again.delta_bic), "afresh_J_pooled": float(again.j_pooled),

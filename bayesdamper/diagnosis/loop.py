@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import numpy as np
 
@@ -289,17 +290,16 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             break
         fit = next(c for c in fits if c.effect == best["effect"])
         search_step("the selection's narrow-basin effects searched afresh")
-        fit, best["basins_afresh"] = research_basins(engine, fit, sel_specs, [specs[lab] for lab in fit.labels],
-                                                     current["sse"], n_eff, flow_for)
-        # refined to the reported tolerance (LM_DTOL; the search stopped at LM_DTOL_SEARCH), intervals there: several
-        # parameters each with the others free, one its own profile's information (its bounded scalar optimum stands)
+        search = partial(search_option, engine, fixed={}, current_sse=current["sse"], n_eff=n_eff, flow_for=flow_for,
+                         new=fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
-        st = {sp.label: fit.effects[sp.effect] for sp in cand}
+        fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):])
+        # refined to LM_DTOL (the search stopped at LM_DTOL_SEARCH), intervals there (several: the others free)
         several = sum(len(search_params(sp)) for sp in cand) > 1
         progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
         search_step("the selection's intervals and re-fit")
-        tight = fit_joint(engine, cand, st, {}, current["sse"], n_eff, flow_for, effect_argument, new=fit.labels,
-                          max_iter=None if several else 0, marginal=several)
+        tight = fit_joint(engine, cand, {sp.label: fit.effects[sp.effect] for sp in cand}, {}, current["sse"], n_eff,
+                          flow_for, effect_argument, new=fit.labels, max_iter=None if several else 0, marginal=several)
         fit = tight if tight.delta_bic <= fit.delta_bic else fit  # the refinement can only improve on the search
         best.update(score=fit.delta_bic, J_pooled=fit.j_pooled, J_reduction=1.0 - fit.j_pooled / j_cur)
         best["params"] = tight.params
