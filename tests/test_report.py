@@ -503,3 +503,22 @@ def test_drift_within_a_record_is_tabled(tmp_path):
     rows = page.table("change over the record (90 %)")
     assert rows[1] == ["sine", "4", "time", "C_L12", "-19 % [-23, -15]", "yes"]
     assert rows[2][3:] == ["α_V", "+0 % [-2, +2]", "no"] and rows[3][2] == "temperature"
+
+
+def test_segmentation_table_says_how_each_plateau_entered_stage_one(tmp_path):
+    """A plateau left out, one whose settled force was extrapolated from its approach, and a settled one."""
+    s = _triangular()
+    step = s["data"]["steps"][0]
+    s["data"]["steps"] = [step,
+                          dict(step, index=1, kind="reversal", direction=-1, plateau_force_N=-950.0,
+                               plateau_in_stage1=False),
+                          dict(step, index=2, kind="reversal", plateau_force_N=1020.0, plateau_in_stage1=True,
+                               plateau_approach_tau_s=0.4321)]
+    _write_figures(tmp_path, s)
+    render_report(s, None, tmp_path)
+    page = _Page()
+    page.feed((tmp_path / REPORT_FILE).read_text())
+    rows = {r[0]: r[-1] for r in page.table("transient (step)")[1:]}
+    assert rows["tri_0p50mm_s_s0"] == "1012.0"
+    assert rows["tri_0p50mm_s_s1"].endswith("drifting: not in stage 1")
+    assert rows["tri_0p50mm_s_s2"].startswith("1020.0") and "approached (τ 0.43 s)" in rows["tri_0p50mm_s_s2"]

@@ -45,7 +45,8 @@ def _lag1(x: np.ndarray) -> float:
 
 
 def plateau_noise(segs) -> dict:
-    """Measurement noise estimated from the plateaus of every record.
+    """Measurement noise estimated from the plateaus of every record whose force had settled (all plateaus where
+    none had: :func:`bayesdamper.inference.plateau_noise.noise_plateaus`).
 
     Returns
     -------
@@ -53,21 +54,22 @@ def plateau_noise(segs) -> dict:
         ``sigma_N`` (pooled sd [N]), ``rho`` (pooled lag-1 autocorrelation [-]), ``n`` (samples) and
         ``smoothed_ms`` (mean square of the low-passed noise [N^2]) with its effective dof.
     """
+    from bayesdamper.inference.plateau_noise import noise_plateaus
+
     res, smooth, rhos, n_eff_s = [], [], [], 0.0
-    for s in segs:
-        t, f = s.record.time, s.record.force
-        n_avg = max(1, int(round(SMOOTH_S * s.record.sample_rate)))
-        for p in s.plateaus:
-            m = (t >= p.t_start) & (t <= p.t_end)
-            if m.sum() < 3 * n_avg:
-                continue
-            r = _detrend(t[m], f[m])
-            res.append(r)
-            rhos.append(_lag1(r))
-            sm = _moving_average(r, n_avg)
-            smooth.append(sm)
-            rho_s = _lag1(sm)
-            n_eff_s += sm.size * (1 - rho_s) / (1 + rho_s)
+    for rec, p in noise_plateaus(segs):
+        t, f = rec.time, rec.force
+        n_avg = max(1, int(round(SMOOTH_S * rec.sample_rate)))
+        m = (t >= p.t_start) & (t <= p.t_end)
+        if m.sum() < 3 * n_avg:
+            continue
+        r = _detrend(t[m], f[m])
+        res.append(r)
+        rhos.append(_lag1(r))
+        sm = _moving_average(r, n_avg)
+        smooth.append(sm)
+        rho_s = _lag1(sm)
+        n_eff_s += sm.size * (1 - rho_s) / (1 + rho_s)
     allr = np.concatenate(res)
     alls = np.concatenate(smooth)
     return {"sigma_N": float(np.std(allr)), "rho": float(np.median(rhos)), "n": int(allr.size),

@@ -101,70 +101,15 @@ def ar1_from_segments(segments: list[np.ndarray]) -> PlateauNoise:
     return PlateauNoise(phi, sigma_e, n, m)
 
 
+def noise_plateaus(segmented_records) -> list:
+    """The plateaus whose samples are noise about a constant: those whose force had settled (no ``approach_tau``),
+    or all of them where none had."""
+    plateaus = [(s.record, p) for s in segmented_records for p in s.plateaus]
+    return [(r, p) for r, p in plateaus if getattr(p, "approach_tau", None) is None] or plateaus
+
+
 def plateau_noise(segmented_records) -> PlateauNoise:
-    """:func:`ar1_from_segments` on the force samples of every plateau of a segmented data set."""
-    segs = []
-    for s in segmented_records:
-        t, f = s.record.time, s.record.force
-        for p in s.plateaus:
-            segs.append(f[(t >= p.t_start) & (t <= p.t_end)])
-    return ar1_from_segments(segs)
-
-
-#: |t| of a plateau's linear trend above which it is not settled (two-sided p = 0.0027 for a settled plateau:
-#: over 18 plateaus a 5 % chance of losing one good plateau, which costs only its data).
-SETTLED_T = 3.0
-#: Plateaus kept per direction whatever their trend (stage 1 needs three for one residual degree of freedom).
-MIN_PLATEAUS_PER_DIRECTION = 3
-
-
-def plateau_trend_t(t: np.ndarray, f: np.ndarray, noise: PlateauNoise) -> float:
-    """t-statistic of the least-squares slope of force ``f`` [N] over times ``t`` [s], its standard error that of
-    AR(1) noise (large-sample: the white-noise error × sqrt((1 + φ)/(1 − φ)))."""
-    x = t - t.mean()
-    sxx = float(x @ x)
-    if sxx <= 0.0:
-        return 0.0
-    slope = float(x @ (f - f.mean())) / sxx
-    phi = noise.phi
-    se = noise.sigma * math.sqrt((1.0 + phi) / (1.0 - phi) / sxx)
-    return slope / se if se > 0 else 0.0
-
-
-def settled_plateaus(segmented_records) -> tuple[list, list[tuple[str, int, float]]]:
-    """Drop the plateaus whose force still drifts: the transient has not died out within them.
-
-    A plateau is the last 30 % of a ramp; after a start from rest with soft gas (low α_V, low p_R) eq. (7)'s
-    approach to the steady force can outlast that (measured on independent data, α_V 25 at 1.5 mm/s: the first
-    plateau 28 N below the steady force, 14 of its standard errors, which moved stage 1's coefficients up to 6
-    of their sds). Its mean is then not a point of eq. (4). The test: the linear trend of the plateau's force
-    with an AR(1) standard error from the noise of all plateaus; |t| > :data:`SETTLED_T` drops it, the
-    largest |t| first, keeping at least :data:`MIN_PLATEAUS_PER_DIRECTION` per direction.
-
-    Returns
-    -------
-    records : list of SegmentedRecord
-        The records with their unsettled plateaus moved from ``plateaus`` to ``unsettled``.
-    dropped : list of (test, plateau index, t)
-    """
-    from dataclasses import replace
-
-    segmented_records = list(segmented_records)
-    noise = plateau_noise(segmented_records)
-    scored = []
-    for s in segmented_records:
-        t, f = s.record.time, s.record.force
-        for p in s.plateaus:
-            sel = (t >= p.t_start) & (t <= p.t_end)
-            scored.append((abs(plateau_trend_t(t[sel], f[sel], noise)), p))
-    left = {d: sum(1 for _, p in scored if p.direction == d) for d in (1, -1)}
-    drop = set()
-    for tval, p in sorted(scored, key=lambda x: -x[0]):
-        if tval > SETTLED_T and left[p.direction] > MIN_PLATEAUS_PER_DIRECTION:
-            drop.add((p.test, p.index))
-            left[p.direction] -= 1
-    out = [replace(s, plateaus=tuple(p for p in s.plateaus if (p.test, p.index) not in drop),
-                   unsettled=tuple(p for p in s.plateaus if (p.test, p.index) in drop))
-           for s in segmented_records]
-    dropped = [(p.test, p.index, float(tv)) for tv, p in scored if (p.test, p.index) in drop]
-    return out, dropped
+    """:func:`ar1_from_segments` on the force samples of every plateau of a segmented data set whose force had
+    settled (all plateaus where none had)."""
+    return ar1_from_segments([r.force[(r.time >= p.t_start) & (r.time <= p.t_end)]
+                              for r, p in noise_plateaus(segmented_records)])

@@ -74,6 +74,11 @@ class Plateau:
         Number of samples.
     t_start, t_end : float
         Plateau time span [s].
+    approach_tau : float or None
+        Where the force was still approaching its settled value within the plateau: the time constant [s] of that
+        approach, and ``pressure_drop`` is the settled value it extrapolates to
+        (:func:`bayesdamper.inference.settle.settled_plateaus`). None: the force had settled and
+        ``pressure_drop`` is the plateau's mean.
     """
 
     test: str
@@ -86,6 +91,7 @@ class Plateau:
     n: int
     t_start: float
     t_end: float
+    approach_tau: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,8 +113,8 @@ class SegmentedRecord:
     knot_displacements : ndarray, shape (n_knots,)
         Fitted displacement at the knots [m]. Read-only.
     unsettled : tuple of Plateau
-        Plateaus taken out of ``plateaus`` because their force still drifts
-        (:func:`bayesdamper.inference.plateau_noise.settled_plateaus`); empty until that check has run.
+        Plateaus taken out of ``plateaus`` because their force still drifts and its approach does not pin the
+        settled force (:func:`bayesdamper.inference.settle.settled_plateaus`); empty until that check has run.
     """
 
     record: TestRecord

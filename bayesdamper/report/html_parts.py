@@ -185,14 +185,19 @@ def _segmentation_table(summary: Mapping, ids: set) -> str:
                      _num(st["velocity_m_s"], ".3f", 1e3), _num(st["t_step_s"], ".3f"),
                      _num(st.get("window_s"), ".3f"), _num(st["force_N"], ".1f"),
                      _num(st.get("plateau_force_N"), ".1f")
-                     + ("" if st.get("plateau_in_stage1", True) or st.get("plateau_force_N") is None
-                        else ' <span class="note">drifting: not in stage 1</span>')])
+                     + ("" if st.get("plateau_force_N") is None
+                        else ' <span class="note">drifting: not in stage 1</span>'
+                        if not st.get("plateau_in_stage1", True)
+                        else f' <span class="note">approached (τ {st["plateau_approach_tau_s"]:.2f} s): settled force '
+                             'extrapolated</span>' if st.get("plateau_approach_tau_s") is not None else "")])
     return ("<p><b>Transients.</b> Every velocity step of a triangular test (the start from rest and each reversal) "
             f"begins a transient window of T<sub>max</sub> = {_num(summary.get('tmax_s'), 'g')} s (or up to the "
             "end of its ramp, where the next velocity change or the end of the record comes first), its state at the "
             "start given by the mean force of the settled samples before the step; the settled end of each ramp is "
-            "a plateau, one point of the static characteristic, unless its force still drifts (linear trend "
-            "|t| &gt; 3 under the plateaus' noise): stage 1 leaves such a plateau out. Bold rows were identified in "
+            "a plateau, one point of the static characteristic. Where its force still drifts (linear trend "
+            "|t| &gt; 3 under the plateaus' noise, each plateau about its own line) the point is the settled force "
+            "an exponential approach fitted to the plateau extrapolates to; where that approach is no faster than "
+            "the plateau's length or leaves a trend, stage 1 leaves the plateau out. Bold rows were identified in "
             "this run.</p>"
             + _table(["transient (step)", "kind", "dir", "v [mm/s]", "t<sub>step</sub> [s]", "window [s]",
                       "F at step [N]", "plateau F [N]"], rows, left=2))

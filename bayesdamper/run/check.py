@@ -43,13 +43,17 @@ def run_check(data_dir: str, *, tmax: float = 3.0, fit: bool = True, mode: str =
         pf = f"{st['plateau_force_N']:15.1f}" if st["plateau_force_N"] is not None else f"{'-':>15}"
         if st["plateau_force_N"] is not None and not st.get("plateau_in_stage1", True):
             pf += "  drifting: not in stage 1"
+        elif st.get("plateau_approach_tau_s") is not None:
+            pf += f"  approached (τ {st['plateau_approach_tau_s']:.2f} s): settled force extrapolated"
         print(f"{st['test']:<16}{st['index']:>5}  {st['kind']:<9}{st['direction']:>+4d}"
               f"{st['velocity_m_s'] * 1e3:10.3f}{st['t_step_s']:12.3f}{st['window_s']:12.3f}{st['force_N']:12.1f}{pf}")
     print()
-    if any(st["plateau_force_N"] is not None and not st.get("plateau_in_stage1", True)
+    if any(st["plateau_force_N"] is not None and (not st.get("plateau_in_stage1", True)
+                                                  or st.get("plateau_approach_tau_s") is not None)
            for st in data_table(ds, segs)["steps"]):
-        print("a plateau whose force still drifts (linear trend |t| > 3) is not a point of eq. (4): stage 1 "
-              "leaves it out")
+        print("a plateau whose force still drifts (linear trend |t| > 3) is not a point of eq. (4) by its mean: "
+              "stage 1 takes the settled force an exponential approach fitted to it extrapolates to, or leaves it "
+              "out where that approach is no faster than the plateau's length or leaves a trend")
     print("stage 1, eq. (4) per direction (least squares, ±1 standard error):")
     if static.constrained:
         print(f"  held at 0 (the plateaus made them negative: an unzeroed load cell or a saturating force?): "

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from bayesdamper.core.errors import DataError, SettingsError
-from bayesdamper.inference.plateau_noise import settled_plateaus
+from bayesdamper.inference.settle import settled_plateaus
 from bayesdamper.inference.stage1 import fit_static
 from bayesdamper.io.dataset import load_dataset
 from bayesdamper.io.recordkind import inspect_record

@@ -151,8 +151,10 @@ def data_table(ds, segs) -> dict:
                 "window_s": float(w.time[-1] - w.t_step) if w is not None else None,
                 "plateau_force_N": (float(np.sign(st.direction) * p.pressure_drop * ds.damper.piston_area)
                                     if p else None),
-                # a plateau whose force still drifts is not a point of eq. (4): stage 1 leaves it out
-                "plateau_in_stage1": bool(p) and (s.record.name, st.index) not in left_out})
+                # a plateau whose force still drifts is not a point of eq. (4): stage 1 takes the settled force its
+                # approach extrapolates to (plateau_force_N is that force), or leaves it out
+                "plateau_in_stage1": bool(p) and (s.record.name, st.index) not in left_out,
+                "plateau_approach_tau_s": (float(p.approach_tau) if p and p.approach_tau is not None else None)})
     records = [{"name": r.name, "file": r.path.name, "n_samples": int(r.time.size),
                 "sample_rate_Hz": float(r.sample_rate), "duration_s": r.duration, "sha256": r.sha256}
                for r in ds.records]
