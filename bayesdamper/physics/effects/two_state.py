@@ -59,8 +59,9 @@ def liquid_gas_modulus(p, b0, alpha_v, p_ref, kappa):
     """Eq. (2) at absolute pressure ``p`` [Pa]: B_0 [Pa], α_V [-] at ``p_ref`` [Pa], κ [-] (``p`` floored at
     :data:`~bayesdamper.physics.effects.signals.PRESSURE_FLOOR_PA`)."""
     r = p_ref / max(p, PRESSURE_FLOOR_PA)
-    num = 1.0 + r ** (1.0 / kappa) / alpha_v
-    den = 1.0 + (b0 / (kappa * p_ref)) * r ** ((kappa + 1.0) / kappa) / alpha_v
+    g = math.exp(math.log(r) / kappa)  # r^(1/κ), and r^((κ+1)/κ) = r g: one exp and one log where pow took two
+    num = 1.0 + g / alpha_v
+    den = 1.0 + (b0 / (kappa * p_ref)) * (r * g) / alpha_v
     return b0 * num / den
 
 
