@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, lovo_passes, paired, velocity_folds
+from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, lovo_passes, paired, runner_up, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.run.progress import Progress
@@ -65,6 +65,23 @@ def test_paired_difference_and_its_se():
     c = LovoScore(3.0, 1.0, (2.0, 0.0, 1.0))
     q = paired(a, c)
     assert math.isclose(q["se"], math.sqrt(3 * np.var([-1.0, 2.0, 2.0], ddof=1)))
+
+
+def test_the_runner_up_is_the_best_scored_option_other_than_the_selection():
+    """When the last resort sets a generic option aside for a physical one, the generic option (the largest held-out
+    gain of the others) is the selection's runner-up; options not scored out of sample are never it."""
+    def row(effect, gain):
+        return {"effect": effect, **({"_lovo": LovoScore(gain, 1.0, (gain,))} if gain is not None else {})}
+
+    generic, physical, other, unscored = (row("valve+unnamed", 1110.0), row("two_state+valve", 998.0),
+                                          row("valve+unnamed_force", 1044.0), row("leakage", None))
+    rows = [generic, physical, other, unscored]
+    assert runner_up(rows, physical) is generic
+    assert runner_up(rows, generic) is other
+    assert runner_up(rows, None) is generic
+    assert runner_up([physical, unscored], physical) is None
+    tie = row("valve+friction", 1110.0)
+    assert runner_up([physical, generic, tie], physical) is generic  # the first of equal gains
 
 
 def test_screening_subset_takes_every_speed_and_rotates_the_kind():

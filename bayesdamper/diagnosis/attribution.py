@@ -36,7 +36,8 @@ from scipy.stats import t as student_t
 from bayesdamper.diagnosis.candidates import CandidateSpec, fit_joint
 
 __all__ = ["LOVO_LEVEL", "LOVO_MIN_FOLDS_FOR_SE", "LOVO_SE", "LOVO_SIGN_TEST_FOLDS", "MAX_FOLDS", "SCREEN_ABOVE",
-           "LovoScore", "lovo_passes", "lovo_score", "paired", "screening_subset", "se_margin", "velocity_folds"]
+           "LovoScore", "lovo_passes", "lovo_score", "paired", "runner_up", "screening_subset", "se_margin",
+           "velocity_folds"]
 
 #: The gain must be significant at the one-sided level this many normal standard errors give (:data:`LOVO_LEVEL`,
 #: 2.3 %; :func:`se_margin` turns it into a margin in standard errors for the number of folds) ...
@@ -220,6 +221,14 @@ def paired(a: LovoScore, b: LovoScore) -> dict:
     se = float(math.sqrt(len(kept) * np.var(kept, ddof=1))) if len(kept) > 1 else float("inf")
     sc = LovoScore(float(kept.sum()), se, tuple(float(d) for d in diff), tuple(bool(o) for o in out))
     return {"gain": sc.gain, "se": se, "n": int(len(kept)), "beats": lovo_passes(sc)}
+
+
+def runner_up(rows: list[dict], best: dict | None) -> dict | None:
+    """The selection's runner-up: of the options scored out of sample (their :class:`LovoScore` under ``"_lovo"``)
+    other than ``best``, the one with the largest leave-velocities-out gain (the first of equal ones); None if
+    there is none."""
+    scored = [r for r in rows if "_lovo" in r and (best is None or r["effect"] != best["effect"])]
+    return max(scored, key=lambda r: r["_lovo"].gain) if scored else None
 
 
 def lovo_passes(sc) -> bool:

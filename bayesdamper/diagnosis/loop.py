@@ -40,6 +40,7 @@ from bayesdamper.diagnosis.attribution import (
     lovo_passes,
     lovo_score,
     paired,
+    runner_up,
     se_margin,
     velocity_folds,
 )
@@ -265,15 +266,14 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 row["passes"] = row["supported"]
         passing = [r for r in rows if r["passes"]]
         best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
-        scored = sorted((r for r in rows if "_lovo" in r), key=lambda r: -r["_lovo"].gain)
-        rival = next((r for r in scored if best is None or r["effect"] != best["effect"]), None)
         last_resort = None
         if best is not None and _generic(best["effect"], specs):
             progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
             search_step("generic option against the physical ones")
             best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
                                                     current["sse"], n_eff, flow_for, lovo_cache)
-        if best is not None and rival is not None and "_lovo" in best and rival is not best:
+        rival = runner_up(rows, best)  # after the last resort: the option it selects, and every option it scored
+        if best is not None and rival is not None and "_lovo" in best:
             best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}
         for r in rows:
             r.pop("_lovo", None)
