@@ -22,7 +22,6 @@ import numpy as np
 from bayesdamper.core.params import PAPER_FLOW, RIG_A_DAMPER
 from bayesdamper.inference.problem import EFFECTS_ATOL, EFFECTS_RTOL
 from bayesdamper.physics.compose import compose, solve_composed
-from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.excitation import PiecewisePolynomial
 
 #: A plateau at 10 mm, then the reversal at 1 mm/s; the window starts at the reversal.
@@ -44,12 +43,8 @@ SETS = {
 }
 
 
-def _effects(spec: dict) -> dict:
-    return {name: (EFFECTS[name].defaults() if values is None else values) for name, values in spec.items()}
-
-
 def measure(spec: dict, solves: int, sweeps: int) -> dict:
-    composed = compose(_effects(spec))
+    composed = compose(spec)  # None: the effect's registry defaults
     drive = composed.transform_input(PiecewisePolynomial.from_knots(KNOTS_T, KNOTS_Y))
     flow = PAPER_FLOW.as_array()
 
