@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.optimize import least_squares
 
-from bayesdamper.diagnosis.inner_fit import lm_step, refit
+from bayesdamper.diagnosis.inner_fit import ENDINGS, MAX_SOLVES_BASE, MAX_SOLVES_PER_PARAMETER, lm_step, refit
 
 LO, HI = np.array([-3.0, -3.0]), np.array([3.0, 3.0])
 
@@ -122,6 +122,36 @@ def test_refit_holds_a_parameter_at_its_bound():
     assert fit.x[1] == pytest.approx(-0.2)
     assert fit.x[0] == pytest.approx(ref.x[0], abs=1e-4)
     assert fit.sse == pytest.approx(2 * ref.cost, rel=1e-6)
+
+
+def test_every_refit_says_how_it_ended():
+    """A re-fit's ``ending`` names the rule that stopped it, and agrees with ``converged``: an infeasible start; a
+    Jacobian whose perturbed solves fail; a converged decay (the Gauss-Newton step from a Jacobian differenced at the
+    optimum below ``xtol``); and Rosenbrock's curved valley from (-1.2, 1), which the re-fit's budget of solves does
+    not cross (it is sized for a transient's nearly quadratic (α_V, p_R) profile)."""
+    out = refit(lambda x: None, np.array([0.0, 0.0]), LO, HI)
+    assert (out.ending, out.converged) == ("infeasible start", False)
+
+    calls = [0]
+    resid = _decay(0)
+
+    def fails_after_the_start(x):
+        calls[0] += 1
+        return resid(x) if calls[0] == 1 else None
+
+    out = refit(fails_after_the_start, np.array([0.0, 0.5]), LO, HI)
+    assert (out.ending, out.converged, out.n_solves) == ("no Jacobian", False, 3)
+
+    out = refit(resid, np.array([0.0, 0.5]), LO, HI)
+    assert (out.ending, out.converged) == ("step below tolerance", True)
+
+    def rosenbrock(x):
+        return np.array([10.0 * (x[1] - x[0] ** 2), 1.0 - x[0]])
+
+    out = refit(rosenbrock, np.array([-1.2, 1.0]), LO, HI)
+    assert (out.ending, out.converged) == ("solves ran out", False)
+    assert out.n_solves >= MAX_SOLVES_BASE + 2 * MAX_SOLVES_PER_PARAMETER
+    assert {"infeasible start", "no Jacobian", "step below tolerance", "solves ran out"} <= set(ENDINGS)
 
 
 def test_refit_of_an_infeasible_start_and_of_failed_trial_solves():

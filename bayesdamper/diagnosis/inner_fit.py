@@ -45,7 +45,8 @@ MAX_SOLVES_PER_PARAMETER, MAX_SOLVES_BASE = 8, 14
 
 @dataclass
 class InnerFit:
-    """Outcome of one re-fit: optimum, sum of squares, residual, the Jacobian there, solves spent."""
+    """Outcome of one re-fit: optimum, sum of squares, residual, the Jacobian there, solves spent, and how it ended
+    (one of :data:`ENDINGS`)."""
 
     x: np.ndarray
     sse: float
@@ -53,6 +54,16 @@ class InnerFit:
     jac: np.ndarray | None
     n_solves: int
     converged: bool
+    ending: str = ""
+
+
+#: How a re-fit ends (:attr:`InnerFit.ending`), by the rule that stopped it (module docstring): a failed solve at the
+#: start; a Jacobian that could not be differenced (a perturbed solve failed); a Gauss-Newton step (from a Jacobian
+#: differenced at the iterate) below ``xtol`` or predicting a gain below ``ftol``; a step the bounds cut to no
+#: predicted gain; an accepted step that gained less than ``ftol`` or what its exact Jacobian predicted; a small step
+#: of an exact Jacobian that failed (the noise floor of the solver and the differences); the solves ran out.
+ENDINGS = ("infeasible start", "no Jacobian", "step below tolerance", "held by the bounds", "gain below tolerance",
+           "noise floor", "solves ran out")
 
 
 def _forward_jacobian(resid, x, r, hi, fd=None):
@@ -175,13 +186,13 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
     r = resid(x) if r0 is None else r0
     n = 1
     if r is None:
-        return InnerFit(x, float("inf"), None, None, n, False)
+        return InnerFit(x, float("inf"), None, None, n, False, "infeasible start")
     s = float(r @ r)
     if jac is None:
         J, moved = _forward_jacobian(resid, x, r, hi, fd), 0.0
         n += x.size
         if J is None:
-            return InnerFit(x, s, r, None, n, False)
+            return InnerFit(x, s, r, None, n, False, "no Jacobian")
     else:
         J, moved = np.array(jac, dtype=float), np.inf
     lam = 0.0
@@ -191,18 +202,18 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
         dx0, pred0 = lm_step(A, g, x, lo, hi, 0.0)  # the Gauss-Newton step: has the fit converged?
         if float(np.linalg.norm(dx0)) < xtol or 0.0 <= pred0 <= ftol * s:
             if moved == 0.0:  # predicted by a Jacobian differenced here
-                return InnerFit(x, s, r, J, n, True)
+                return InnerFit(x, s, r, J, n, True, "step below tolerance")
             J, moved, lam = _forward_jacobian(resid, x, r, hi, fd), 0.0, 0.0
             n += x.size
             if J is None:
-                return InnerFit(x, s, r, None, n, False)
+                return InnerFit(x, s, r, None, n, False, "no Jacobian")
             continue
         dx, pred = (dx0, pred0) if lam == 0.0 else lm_step(A, g, x, lo, hi, lam)
         while pred <= 0.0 and lam < LAM_MAX:  # a step cut by the bounds that the model says cannot gain
             lam = max(4.0 * lam, 1e-3)
             dx, pred = lm_step(A, g, x, lo, hi, lam)
         if pred <= 0.0:
-            return InnerFit(x, s, r, J, n, moved == 0.0)
+            return InnerFit(x, s, r, J, n, moved == 0.0, "held by the bounds")
         r_new = resid(x + dx)
         n += 1
         s_new = float(r_new @ r_new) if r_new is not None else np.inf
@@ -214,16 +225,16 @@ def refit(resid, x0: np.ndarray, lo: np.ndarray, hi: np.ndarray, jac: np.ndarray
                                                                     abs(s - s_new - pred) <= ftol * s)
             x, r, s = x + dx, r_new, s_new
             if done:
-                return InnerFit(x, s, r, J, n, True)
+                return InnerFit(x, s, r, J, n, True, "gain below tolerance")
             moved += float(np.linalg.norm(dx))
             lam = 0.0 if lam < 1e-3 else 0.25 * lam
         elif moved == 0.0 and pred <= 10.0 * ftol * s:  # an exact Jacobian's small step failed: the noise floor
-            return InnerFit(x, s, r, J, n, True)
+            return InnerFit(x, s, r, J, n, True, "noise floor")
         elif moved > 0.0:  # the Jacobian may be what failed: difference it here first
             J, moved = _forward_jacobian(resid, x, r, hi, fd), 0.0
             n += x.size
             if J is None:
-                return InnerFit(x, s, r, None, n, False)
+                return InnerFit(x, s, r, None, n, False, "no Jacobian")
         else:
             lam = max(4.0 * lam, 1e-3)
-    return InnerFit(x, s, r, J, n, False)
+    return InnerFit(x, s, r, J, n, False, "solves ran out")
