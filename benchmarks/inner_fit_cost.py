@@ -78,7 +78,7 @@ def main(argv=None) -> int:
 
     def refit(resid, x0, lo, hi, jac=None, **kw):
         fit = counted(resid, x0, lo, hi, jac, **kw)
-        kind = "rough" if "xtol" in kw else "exact"
+        kind = "rough" if "xtol" in kw else "exact"  # the worker passes tolerances only to a rough re-fit
         tally[(kind, fit.ending)][0] += 1
         tally[(kind, fit.ending)][1] += fit.n_solves
         solves_of[kind].append(fit.n_solves)

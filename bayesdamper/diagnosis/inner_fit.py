@@ -54,7 +54,7 @@ class InnerFit:
     jac: np.ndarray | None
     n_solves: int
     converged: bool
-    ending: str = ""
+    ending: str
 
 
 #: How a re-fit ends (:attr:`InnerFit.ending`), by the rule that stopped it (module docstring): a failed solve at the
