@@ -260,6 +260,32 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
     assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"), ("two_state", "backlash")]
 
 
+def test_the_best_physical_screens_are_paired_whatever_generic_filters_rank_above_them(monkeypatch):
+    """Generic filters can take the screen's first places on the two-state model (a compliant mount on a two-state
+    damper looks like a flow filter); the library effects that improve on the two-state model are paired with it all
+    the same, the PAIR_FROM best of them (a generic option is named only over the best physical ones), and a library
+    effect the screen finds no better than the two-state model alone is not."""
+    import bayesdamper.diagnosis.loop as loop
+
+    generic = [f"unnamed_dynamics@{p}" for p in ("flow", "force", "flow:q", "force:q")]
+    physical = ["series_compliance", "leakage", "friction", "backlash", "inertia"]
+    specs = {n: CandidateSpec(n) for n in ["two_state", *generic, *physical]}
+    screen = {**dict(zip(generic, (-900.0, -800.0, -700.0, -600.0), strict=True)),
+              **dict(zip(physical, (-500.0, -400.0, -300.0, -200.0, +5.0), strict=True))}
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+        label = cands[-1].label
+        return SimpleNamespace(labels=(label,) if grid_only else ("two_state", label), delta_bic=screen[label],
+                               effects={c.effect: {} for c in cands}, effect="+".join(c.label for c in cands))
+
+    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    ts = SimpleNamespace(labels=("two_state",), delta_bic=+20.0, effects={"two_state": {}}, effect="two_state")
+    out, _ = loop.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    paired = [o.labels[1] for o in out]
+    assert paired == generic[:loop.PAIR_FROM] + physical[:loop.PAIR_FROM]
+    assert "backlash" not in paired and "inertia" not in paired
+
+
 def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):
     """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
     alone, also from that fit's optimum, each start for GLOBAL_LM_ITER iterations and the best continued; the better

@@ -332,22 +332,21 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
     missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
     candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
-    ΔBIC_eff are fitted jointly with it, and so are the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
+    ΔBIC_eff are fitted jointly with it, and so are the :data:`PAIR_FROM` best library effects among those the screen
+    found to improve on the two-state model (generic filters can fill the first slots, and a generic option is named
+    only over the best physical ones) and the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
     narrow basin can lie between the screen's grid points), every parameter free: from the screen's point with the
     two-state model as fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone,
     also from its own optimum there with the two-state model at the registry's defaults (neither was fitted with the
     other); and with the two-state model refilling (:data:`REFILL_START`), from the screen's point, from that
     optimum and with the candidate searched afresh on the refilling model (grid, global stage). Each start is refined
     for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
-    budget. The best fit is the option: a valve's profile has several basins, and the screen's coarse grid may start
-    it in the wrong one; a two-state model that fits badly alone ends at no refill, where the refill's profile is
-    flat, and the valve that best fits the refilling model can lie in another basin than the one the screen found on
-    the model without refill.
+    budget. The best fit is the option: a valve's profile has several basins, the screen's coarse grid may start it
+    in the wrong one, and a two-state model fitted alone ends at no refill, where the refill's profile is flat.
     Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
-    model (``{label: values}``; a later round that holds the two-state model alone screens there instead of on the
-    whole grid). A pair the round has already fitted from its members' own optima (both among its best singles) is
-    fitted from these starts too, and the best of all its fits replaces it in ``fits``: the members' optima can lie
-    in the refill's flat part, which the refilling start leaves.
+    model (``{label: values}``; a later round that holds the two-state model alone screens there). A pair the round
+    has already fitted from its members' own optima is fitted from these starts too, and the best of all its fits
+    replaces it in ``fits``: the members' optima can lie in the refill's flat part, which the refilling start leaves.
 
     The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
     fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
@@ -369,6 +368,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     ranked = sorted(screened, key=lambda c: c.delta_bic)
     lead = [f.labels[0] for f in sorted(fits, key=lambda f: f.delta_bic)  # the round's best singles on eq. (7)
             if len(f.labels) == 1 and f.delta_bic < 0 and specs[f.labels[0]].effect != TWO_STATE][:PAIR_FROM]
+    lead += [c.labels[0] for c in ranked if c.delta_bic < 0 and not _generic(c.labels[0], specs)][:PAIR_FROM]
     for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
         pair = (ts.labels[0], c.labels[0])
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
