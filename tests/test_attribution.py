@@ -286,6 +286,22 @@ def test_the_best_physical_screens_are_paired_whatever_generic_filters_rank_abov
     assert "backlash" not in paired and "inertia" not in paired
 
 
+def test_the_options_refitted_are_the_best_and_the_best_physical_ones():
+    """A later round re-fits its best screened candidates jointly with the selected effects: the first PAIR_FROM and
+    the first PAIR_FROM that hold no generic effect, in rank order, each once."""
+    from bayesdamper.diagnosis.spec import best_and_physical, holds_generic
+
+    labels = ["unnamed_dynamics@force", "unnamed_dynamics@flow", "load_cell_offset", "unnamed_dynamics@flow:q",
+              "series_compliance", "gas_spring", "inertia"]
+    specs = {n: CandidateSpec(n) for n in labels}
+    ranked = [SimpleNamespace(effect=n) for n in labels]
+    got = [c.effect for c in best_and_physical(ranked, specs, 3)]
+    assert got == labels[:3] + ["series_compliance", "gas_spring"]
+    assert [c.effect for c in best_and_physical(ranked[2:], specs, 3)] == labels[2:6]  # and the third physical one
+    assert holds_generic("two_state+unnamed_dynamics@flow", specs | {"two_state": CandidateSpec("two_state")})
+    assert not holds_generic("series_compliance", specs)
+
+
 def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):
     """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
     alone, also from that fit's optimum, each start for GLOBAL_LM_ITER iterations and the best continued; the better

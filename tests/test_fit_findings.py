@@ -307,6 +307,20 @@ def test_a_valves_bleed_is_held_on_the_grid_and_searched_by_the_global_stage():
     assert fit.j_pooled < 0.2  # sqrt(1 / 50) at the well, against sqrt(40 / 50) on the grid
 
 
+def test_a_screen_scores_the_global_stages_starts_like_its_grid_points():
+    """A screen (``grid_only``) is the grid's best point, the bleed held at its default; with ``screen_global`` the
+    global stage's starts are scored too and the screen's point is the best of both (the bleed's well at 1), with no
+    refinement either way."""
+    args = ({}, {}, np.array([50.0]), np.array([50.0]), lambda e: None, lambda e: e)
+    plain = fit_joint(_BleedEngine(), [CandidateSpec("poppet_valve")], *args, grid_only=True)
+    wide = fit_joint(_BleedEngine(), [CandidateSpec("poppet_valve")], *args, grid_only=True, screen_global=True)
+    assert plain.effects["poppet_valve"]["bleed_fraction"] == pytest.approx(0.1)
+    assert plain.j_pooled == pytest.approx(math.sqrt(40.0 / 50.0), rel=1e-6) and "global" not in plain.cost
+    assert wide.effects["poppet_valve"]["bleed_fraction"] == pytest.approx(1.0)
+    assert wide.j_pooled == pytest.approx(math.sqrt(1.0 / 50.0), rel=1e-6)
+    assert wide.cost["global"]["starts"] == 3 and "refine" not in wide.cost and "refine" not in plain.cost
+
+
 def _servo_fit(poles=()):
     return fit_joint(_WellEngine(), [CandidateSpec("command_displacement", poles=poles)], {}, {}, np.array([50.0]),
                      np.array([50.0]), lambda e: None, lambda e: e)

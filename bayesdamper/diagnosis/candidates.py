@@ -142,7 +142,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
               current_sse: np.ndarray, n_eff: np.ndarray, flow_for, pack, *, new: tuple[str, ...] | None = None,
               idx: np.ndarray | None = None, max_iter: int | None = None, marginal: bool = False,
               grid_only: bool = False, intervals_to: float = math.inf, dtol: float = LM_DTOL,
-              polish: bool | None = None, points_only: bool = False) -> CandidateFit:
+              polish: bool | None = None, points_only: bool = False, screen_global: bool = False) -> CandidateFit:
     """Fit the shared parameters of several candidates jointly and score the new ones.
 
     Parameters
@@ -183,6 +183,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         The refinement's stop (:func:`_profile_lm`): :data:`~bayesdamper.diagnosis.engine.LM_DTOL` for values that
         are reported, the loop's looser :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH` for options it only
         ranks.
+    screen_global : bool
+        With ``grid_only``: the global stage's starts are scored like the grid's points and the best of both is the
+        screen's point (a valve's narrow basin between the grid's points is not screened out).
     points_only : bool
         The grid is the specs' whole points alone (``CandidateSpec.points``), where they give any: a screen on a
         model that an earlier screen of the same candidates held (:func:`bayesdamper.diagnosis.loop.select_effects`).
@@ -355,7 +358,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             best = cands[int(np.argmin(vals))]
             stage("grid")
         refine_from = [best]
-        if searching and grid_dims and idx is None:
+        if (searching or (grid_only and screen_global)) and grid_dims and idx is None:
             # the global stage: starts from the signature and the data on the narrow-basin axes, scored like the
             # grid; the best few distinct starts of both are refined
             def peaks():
@@ -378,6 +381,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             extra, narrow = global_starts(flat, grid_dims + held_dims, best, lo, hi, data_pressures(engine), peaks)
             if narrow:
                 gvals = [grid_objective(z) for z in extra]
+                best = (cands + extra)[int(np.argmin(vals + gvals))] if grid_only else best
                 refine_from = _distinct_best(cands + extra, vals + gvals, narrow, lo, hi, GLOBAL_REFINE,
                                              math.log(GLOBAL_SSE_RATIO), 1.0 if screen is not None else n_total)
                 refine_from = refine_from or [best]

@@ -56,6 +56,7 @@ from bayesdamper.diagnosis.candidates import (
 )
 from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
 from bayesdamper.diagnosis.global_stage import search_step
+from bayesdamper.diagnosis.spec import best_and_physical, holds_generic
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
 
@@ -66,16 +67,15 @@ SELECT_DELTA_BIC = -10.0
 #: two-state data the mis-specification looks partly like friction).
 MIN_J_REDUCTION = 0.2
 MAX_ROUNDS = 3  # rounds of the select-and-refit loop
-#: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the intervals of the
-#: option selected are computed at its optimum once it is selected (two re-fits of every window per parameter, and
-#: about 2 n² for the marginal intervals of n parameters, spared for every option that is not).
+#: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the option selected gets
+#: its intervals at its optimum (two re-fits of every window per parameter, spared for every option that is not).
 NO_INTERVALS = -math.inf
 #: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
 PAIR_FROM = 3
 #: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
 PHYSICAL_RIVALS = 2
-#: The generic effect (dynamics no named effect holds) and the two-state physics the loop checks first.
-GENERIC, TWO_STATE = "unnamed_dynamics", "two_state"
+#: The two-state physics the loop checks first.
+TWO_STATE = "two_state"
 #: Refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start (:func:`two_state_pairs`): a decade below
 #: the top of the two-state model's own range, inside the basin where the accumulator refills.
 REFILL = "refill_conductance_m3_per_s_Pa"
@@ -162,18 +162,18 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
 
     Each round: every remaining candidate is fitted (after the first round screened: its grid's best point with the
     effects already selected held at their values, the grid holding its optimum of the round before); the
-    :data:`PAIR_FROM` best are re-fitted jointly with the selected effects (those re-fitted too), and pairs of them
-    are fitted jointly. Only joint fits are options. An option (single or pair) is *supported* by the present
+    :data:`PAIR_FROM` best, and the :data:`PAIR_FROM` best library effects (generic filters can crowd them out),
+    are re-fitted jointly with the selected effects (those re-fitted too), and pairs of the best are fitted jointly.
+    Only joint fits are options. An option (single or pair) is *supported* by the present
     criterion when ΔBIC_eff <= :data:`SELECT_DELTA_BIC` and it lowers the pooled J by >= :data:`MIN_J_REDUCTION`.
     For the :data:`LOVO_OPTIONS` best supported options by ΔBIC_eff, and the best other option as the runner-up, the
     leave-velocities-out gain over the current model is computed (nothing when no option is supported); the rule
     selects, among the supported options that pass the out-of-sample rule (:func:`lovo_passes`), the one with the
     largest gain. Otherwise the round ends with "none".
 
-    ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine`; ``names``: effect names or
-    :class:`~bayesdamper.diagnosis.candidates.CandidateSpec`; ``forces``: the measured forces;
-    ``flow_for(fixed)``: flow coefficients for the effects ``fixed`` (None keeps stage 1's); ``velocities``:
-    the transients' test speeds (the folds; without them the out-of-sample evidence is skipped).
+    ``engine``: a :class:`~bayesdamper.diagnosis.candidates.ProfileEngine`; ``names``: effect names or specs;
+    ``forces``: the measured forces; ``flow_for(fixed)``: flow coefficients for the effects ``fixed`` (None keeps
+    stage 1's); ``velocities``: the test speeds (the folds; without them no out-of-sample evidence).
     Returns ``(selected labels, {effect: values}, rounds)``.
     """
     specs = {(n.label if isinstance(n, CandidateSpec) else n): (n if isinstance(n, CandidateSpec) else CandidateSpec(n))
@@ -186,7 +186,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     fixed: dict = {}
     rounds = []
     # the paper's own simplification first: the two-state physics, then the library, the generic forms last
-    remaining = sorted(specs, key=lambda lab: (specs[lab].effect != TWO_STATE, _generic(lab, specs)))
+    remaining = sorted(specs, key=lambda lab: (specs[lab].effect != TWO_STATE, holds_generic(lab, specs)))
     folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
     earlier: dict = {}  # each candidate's optimum in the round before: a point of its next screen's grid
     ts_screen: dict = {}  # the first round's screen on the two-state model: each candidate's best point
@@ -211,7 +211,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         if sel_specs:  # ... and the best re-fitted jointly with them (every option compared below is joint)
             held = {c.effect for c in fits}
             search_step("the best re-fitted with the selected effects")
-            for c in sorted((c for c in fits if c.delta_bic < 0), key=lambda c: c.delta_bic)[:PAIR_FROM]:
+            ranked = sorted((c for c in fits if c.delta_bic < 0), key=lambda c: c.delta_bic)
+            for c in best_and_physical(ranked, specs, PAIR_FROM):
                 progress(f"diagnose: round {rnd + 1}, re-fitting {c.effect} jointly with {', '.join(selected)}")
                 st = dict(start)
                 st[c.effect] = c.effects[specs[c.effect].effect]
@@ -267,7 +268,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         passing = [r for r in rows if r["passes"]]
         best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
         last_resort = None
-        if best is not None and _generic(best["effect"], specs):
+        if best is not None and holds_generic(best["effect"], specs):
             progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
             search_step("generic option against the physical ones")
             best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
@@ -330,17 +331,16 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
 
     A rig effect seen through eq. (6)'s assumed pressures can be masked by them (a compliant mount on a two-state
     damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
-    missing. So every other candidate is screened on the two-state model as fitted alone (held at its values, the
-    candidate's grid best, as later rounds screen on the selected effects), and the :data:`PAIR_FROM` best by
-    ΔBIC_eff are fitted jointly with it, and so are the :data:`PAIR_FROM` best library effects among those the screen
-    found to improve on the two-state model (generic filters can fill the first slots, and a generic option is named
-    only over the best physical ones) and the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
-    narrow basin can lie between the screen's grid points), every parameter free: from the screen's point with the
-    two-state model as fitted alone (the point was screened there); for a candidate that improved on eq. (7) alone,
-    also from its own optimum there with the two-state model at the registry's defaults (neither was fitted with the
-    other); and with the two-state model refilling (:data:`REFILL_START`), from the screen's point, from that
-    optimum and with the candidate searched afresh on the refilling model (grid, global stage). Each start is refined
-    for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
+    missing. So every other candidate is screened on the two-state model as fitted alone (held at its values; the
+    candidate's grid and its global stage's starts), the :data:`PAIR_FROM` best by ΔBIC_eff are fitted jointly with
+    it, and so are the :data:`PAIR_FROM` best library effects among those that improve on it (a generic option is
+    named only over the best physical ones) and the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
+    narrow basin can lie between the grid's points), every parameter free: from the screen's point with the
+    two-state model as fitted alone; for a candidate that improved on eq. (7) alone, also from its own optimum there
+    with the two-state model at the registry's defaults; and with the two-state model refilling
+    (:data:`REFILL_START`), from the screen's point, from that optimum and with the candidate searched afresh on the
+    refilling model (grid, global stage). Each start is refined for
+    :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
     budget. The best fit is the option: a valve's profile has several basins, the screen's coarse grid may start it
     in the wrong one, and a two-state model fitted alone ends at no refill, where the refill's profile is flat.
     Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
@@ -361,14 +361,14 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
             continue
         progress(f"diagnose: round 1, screening {label} on the two-state model")
         screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
-                                  grid_only=True))
+                                  grid_only=True, screen_global=True))
         progress.advance()
     have = {frozenset(c.labels): c for c in fits if len(c.labels) == 2}
     out = []
     ranked = sorted(screened, key=lambda c: c.delta_bic)
     lead = [f.labels[0] for f in sorted(fits, key=lambda f: f.delta_bic)  # the round's best singles on eq. (7)
             if len(f.labels) == 1 and f.delta_bic < 0 and specs[f.labels[0]].effect != TWO_STATE][:PAIR_FROM]
-    lead += [c.labels[0] for c in ranked if c.delta_bic < 0 and not _generic(c.labels[0], specs)][:PAIR_FROM]
+    lead += [c.labels[0] for c in ranked if c.delta_bic < 0 and not holds_generic(c.labels[0], specs)][:PAIR_FROM]
     for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
         pair = (ts.labels[0], c.labels[0])
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
@@ -401,11 +401,6 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     return out, {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in screened}
 
 
-def _generic(label: str, specs: dict) -> bool:
-    """The option ``label`` (a candidate or a pair ``a+b``) holds the generic effect."""
-    return any(specs[lab].effect == GENERIC for lab in label.split("+") if lab in specs)
-
-
 def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, engine, folds, sel_specs: list,
                         fixed: dict, current_sse, n_eff, flow_for, cache: dict) -> tuple[dict | None, dict]:
     """The generic option ``best`` against the best physical explanations (library effects and the two-state model,
@@ -427,7 +422,7 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
             r["lovo"] = r["_lovo"].as_dict()
             r["passes"] = bool(r["supported"] and lovo_passes(r["_lovo"]))
 
-    mine = [r for r in rows if not _generic(r["effect"], specs) and not r.get("held_selected")]
+    mine = [r for r in rows if not holds_generic(r["effect"], specs) and not r.get("held_selected")]
     physical = sorted(mine, key=lambda r: r["score"])[:PHYSICAL_RIVALS]
     record = {"generic": best["effect"], "level": LOVO_LEVEL, "rivals": [], "indistinguishable_from": []}
     kept = True

@@ -13,7 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CandidateFit", "CandidateSpec", "SearchParam", "search_params"]
+__all__ = ["GENERIC", "CandidateFit", "CandidateSpec", "SearchParam", "best_and_physical", "holds_generic",
+           "search_params"]
+
+#: The generic effect: dynamics no named effect holds, built from the residual's signature.
+GENERIC = "unnamed_dynamics"
 
 
 @dataclass
@@ -91,6 +95,19 @@ class CandidateSpec:
     @property
     def effect(self) -> str:
         return self.label.split("@", 1)[0]
+
+
+def holds_generic(label: str, specs: dict) -> bool:
+    """The option ``label`` (a candidate or a pair ``a+b``) holds the generic effect."""
+    return any(specs[lab].effect == GENERIC for lab in label.split("+") if lab in specs)
+
+
+def best_and_physical(ranked: list, specs: dict, n: int) -> list:
+    """The first ``n`` of the options ``ranked`` (best first, each with its ``effect`` label) and, in their order,
+    the first ``n`` of them that hold no generic effect: generic filters can take every first place, and a generic
+    option is named only over the best physical ones."""
+    physical = {id(c) for c in [c for c in ranked if not holds_generic(c.effect, specs)][:n]}
+    return [c for i, c in enumerate(ranked) if i < n or id(c) in physical]
 
 
 def search_params(spec: CandidateSpec) -> list[SearchParam]:

@@ -26,15 +26,13 @@ from bayesdamper.diagnosis.global_stage import search_cost_by_step
 from bayesdamper.diagnosis.loop import MIN_J_REDUCTION, SELECT_DELTA_BIC
 from bayesdamper.diagnosis.residual import SMOOTH_S, STRUCTURE_ALPHA, describe_residual, structure_test
 from bayesdamper.diagnosis.residual import summarise_structure as _summarise_structure
+from bayesdamper.diagnosis.spec import GENERIC
 from bayesdamper.diagnosis.unnamed import effect_reading
 from bayesdamper.inference.drift import drift_summary
 from bayesdamper.physics.effects import EFFECTS
 
 __all__ = ["GENERIC", "annotate_bounds", "bound_findings", "findings_text", "j_by_speed", "p_r_split", "pooled_j_ls",
            "summarise_diagnosis", "test_speeds"]
-
-#: The generic effect: a candidate only with the structure the residual's signature found.
-GENERIC = "unnamed_dynamics"
 
 
 def pooled_j_ls(entries: list[dict], forces: list[np.ndarray]) -> float:
