@@ -381,10 +381,12 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             extra, narrow = global_starts(flat, grid_dims + held_dims, best, lo, hi, data_pressures(engine), peaks)
             if narrow:
                 gvals = [grid_objective(z) for z in extra]
-                best = (cands + extra)[int(np.argmin(vals + gvals))] if grid_only else best
-                refine_from = _distinct_best(cands + extra, vals + gvals, narrow, lo, hi, GLOBAL_REFINE,
-                                             math.log(GLOBAL_SSE_RATIO), 1.0 if screen is not None else n_total)
-                refine_from = refine_from or [best]
+                if grid_only:  # a screen: its point is the best of the grid's and the starts'
+                    best = (cands + extra)[int(np.argmin(vals + gvals))]
+                else:
+                    refine_from = _distinct_best(cands + extra, vals + gvals, narrow, lo, hi, GLOBAL_REFINE,
+                                                 math.log(GLOBAL_SSE_RATIO), 1.0 if screen is not None else n_total)
+                    refine_from = refine_from or [best]
                 stage("global", starts=len(extra))
         z_hat = best
         if searching:
