@@ -368,7 +368,8 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     ranked = sorted(screened, key=lambda c: c.delta_bic)
     lead = [f.labels[0] for f in sorted(fits, key=lambda f: f.delta_bic)  # the round's best singles on eq. (7)
             if len(f.labels) == 1 and f.delta_bic < 0 and specs[f.labels[0]].effect != TWO_STATE][:PAIR_FROM]
-    lead += [c.labels[0] for c in ranked if c.delta_bic < 0 and not holds_generic(c.labels[0], specs)][:PAIR_FROM]
+    # and the best library effects among the screens that improve on the two-state model (best_and_physical)
+    lead += [c.labels[0] for c in best_and_physical([c for c in ranked if c.delta_bic < 0], specs, PAIR_FROM)]
     for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
         pair = (ts.labels[0], c.labels[0])
         progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
