@@ -15,7 +15,11 @@ Model, SI units throughout. At time t, with the measured displacement y_A(t) and
 * orifice flow Q_O(Δp) of eq. (8) (:func:`independent.orifice_flow`), or with ``fluid_inertance`` the state
   Q_L of L dQ_L/dt = Δp - Δp_O(Q_L), Δp_O(Q) = C_L Q + C_Q Q|Q| of eq. (4) (:func:`independent.quasi_static_dp`),
   which then replaces Q_O everywhere below; path flow
-  Q = Q_O (ε + clip(x, 0, 1)) / (ε + s(Δp)) [poppet_valve] + G_l Δp [leakage] + g y [unnamed_dynamics, placement 1];
+  Q = Q_O (ε + clip(x, 0, 1)) / (ε + s) [poppet_valve] + G_l Δp [leakage] + g y [unnamed_dynamics, placement 1];
+* the poppet valves: a check valve for each flow direction (``per_direction`` 1), lifts x_+ and x_- each a damped
+  oscillator ẍ = ω^2 (s_± - x) - 2ζω ẋ towards s_± = clip((±Δp - p_c) / p_s, 0, 1); the flow passes the valve of
+  its direction (x, s = x_+, s_+ for Δp >= 0, else x_-, s_-). With ``per_direction`` 0 one valve element passes
+  either direction, its lift x_+ driven by s(|Δp|) (x_- then unused);
 * the unnamed filter: ẅ = ω^2 (L(u) - w) - 2ζω ẇ, output y = w (``mode`` 0) or y = w - L(u) (``mode`` 1, the
   transient: zero in steady state), added as g y to the force (placement 0) or to the path flow (placement 1);
 * B(p) = B_0 (1 + α_V) / (α_V + B_0 p_R / p^2); eq. (6) picks B_1, B_2 from p_R and p_R + |Δp| and
@@ -97,7 +101,7 @@ __all__ = [
 EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
     "command_displacement": {"bandwidth_Hz": None, "damping_ratio": None},
     "poppet_valve": {"natural_frequency_Hz": None, "damping_ratio": None, "cracking_pressure_Pa": None,
-                     "span_Pa": 1e6, "bleed_fraction": 0.1},
+                     "span_Pa": 1e6, "bleed_fraction": 0.1, "per_direction": 1},
     "accumulator": {"charge_pressure_Pa": None, "conductance_m3_per_s_Pa": None},
     "gas_spring": {"stiffness_N_per_m": None},
     "load_cell_offset": {"offset_N": None},
@@ -117,7 +121,7 @@ EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
 #: Effect name -> names of its states (in state-vector order); effects not listed have no state.
 EFFECT_STATES: dict[str, tuple[str, ...]] = {
     "command_displacement": ("y_p", "v_p"),
-    "poppet_valve": ("valve_lift", "valve_rate"),
+    "poppet_valve": ("valve_lift", "valve_rate", "valve_lift_reverse", "valve_rate_reverse"),
     "accumulator": ("p_mean",),
     "unnamed_dynamics": ("w", "w_dot"),
     "fluid_inertance": ("q_l",),
@@ -350,10 +354,15 @@ class _Model:
             b1, b2 = self.b_ref, self.bulk(self.p_r - dp)
         return b1 / vol1, b2 / vol2, -q, q, 0.0
 
-    def opening(self, dp: float) -> float:
-        """Steady poppet opening s(Δp) = clip((|Δp| - p_c) / p_s, 0, 1)."""
+    def openings(self, dp: float) -> tuple[float, float]:
+        """Steady openings (s_+, s_-) = clip((±Δp - p_c) / p_s, 0, 1) of the valves of the two flow directions; one
+        valve element for both (``per_direction`` 0): s(|Δp|) twice."""
         p = self.fx["poppet_valve"]
-        return min(max((abs(dp) - p["cracking_pressure_Pa"]) / p["span_Pa"], 0.0), 1.0)
+        pc, ps = p["cracking_pressure_Pa"], p["span_Pa"]
+        if p["per_direction"] == 0:
+            s = min(max((abs(dp) - pc) / ps, 0.0), 1.0)
+            return s, s
+        return min(max((dp - pc) / ps, 0.0), 1.0), min(max((-dp - pc) / ps, 0.0), 1.0)
 
     def orifice_dp(self, q: float) -> float:
         """Eq. (4): Δp_O(Q) = C_L Q + C_Q Q|Q| [Pa], the (C_L12, C_Q12) pair for Q >= 0, else (C_L21, C_Q21)."""
@@ -406,10 +415,12 @@ class _Model:
         target = 0.0
         if "unnamed_dynamics" in fx:
             target = self.law(self.driver(dp, q_o, y_p, v_p))  # L(u) at time t: u never depends on w
-        s = 0.0
+        s_fwd = s_rev = 0.0
         if "poppet_valve" in fx:
-            s = self.opening(dp)
-            lift = float(x[idx["poppet_valve"]])
+            s_fwd, s_rev = self.openings(dp)
+            i = idx["poppet_valve"]
+            fwd = dp >= 0.0 or fx["poppet_valve"]["per_direction"] == 0
+            lift, s = (float(x[i]), s_fwd) if fwd else (float(x[i + 2]), s_rev)
             eps = fx["poppet_valve"]["bleed_fraction"]
             q = q_o * (eps + min(max(lift, 0.0), 1.0)) / (eps + s)
         if "leakage" in fx:
@@ -458,7 +469,9 @@ class _Model:
         if "poppet_valve" in fx:
             i, w, z = idx["poppet_valve"], om["poppet_valve"], fx["poppet_valve"]
             dx[i] = x[i + 1]
-            dx[i + 1] = w * w * (s - x[i]) - 2.0 * z["damping_ratio"] * w * x[i + 1]
+            dx[i + 1] = w * w * (s_fwd - x[i]) - 2.0 * z["damping_ratio"] * w * x[i + 1]
+            dx[i + 2] = x[i + 3]
+            dx[i + 3] = w * w * (s_rev - x[i + 2]) - 2.0 * z["damping_ratio"] * w * x[i + 3]
         if "unnamed_dynamics" in fx:
             i, w, z = idx["unnamed_dynamics"], om["unnamed_dynamics"], fx["unnamed_dynamics"]
             dx[i] = x[i + 1]
@@ -478,7 +491,7 @@ class _Model:
             x[i] = -2.0 * fx["command_displacement"]["damping_ratio"] * v_prev / w  # e = y_P - y_A
             x[i + 1] = v_prev
         if "poppet_valve" in fx:
-            x[idx["poppet_valve"]] = self.opening(dp0)
+            x[idx["poppet_valve"]], x[idx["poppet_valve"] + 2] = self.openings(dp0)
         if "accumulator" in fx:
             x[idx["accumulator"]] = fx["accumulator"]["charge_pressure_Pa"] + 0.5 * abs(dp0)  # unloaded at p_a
         if "two_state_damper" in fx:  # the accumulator and the unloaded chamber at the charge, the loaded above it
@@ -502,6 +515,7 @@ class _Model:
         if "poppet_valve" in fx:
             i = idx["poppet_valve"]
             tol[i], tol[i + 1] = unit, unit * self.omega["poppet_valve"]
+            tol[i + 2], tol[i + 3] = unit, unit * self.omega["poppet_valve"]
         if "unnamed_dynamics" in fx:
             i, p = idx["unnamed_dynamics"], fx["unnamed_dynamics"]
             scale = 1.0 if p["law"] == 3 else _DRIVER_SCALES[p["driver"]]

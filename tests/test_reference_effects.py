@@ -152,7 +152,8 @@ def test_defaults_and_state_order():
     assert fx["mains_interference"]["frequency_Hz"] == 50.0 and fx["poppet_valve"]["span_Pa"] == 1e6
     assert (fx["unnamed_dynamics"]["threshold"], fx["unnamed_dynamics"]["driver"]) == (0.0, 0)
     assert fx["unnamed_dynamics"]["mode"] == 0 and isinstance(fx["unnamed_dynamics"]["mode"], int)
-    assert state_names(fx) == ("dp", "valve_lift", "valve_rate", "w", "w_dot")
+    assert state_names(fx) == ("dp", "valve_lift", "valve_rate", "valve_lift_reverse", "valve_rate_reverse", "w",
+                               "w_dot")
     assert state_names({"fluid_inertance": {"inertance_kg_per_m4": 1e9}, **fx})[-1] == "q_l"
     assert state_names({name: {} for name in ()}) == ("dp",)
 
@@ -207,8 +208,9 @@ def test_fast_poppet_follows_the_orifice_law(bare):
     out = run({"poppet_valve": {"natural_frequency_Hz": 1e4, "damping_ratio": 1.0, "cracking_pressure_Pa": 2e5}},
               return_states=True)
     assert rel_l2(out["force"], bare) < FAST_POPPET_RTOL
-    s = np.clip((np.abs(out["dp"]) - 2e5) / 1e6, 0.0, 1.0)
-    assert np.max(np.abs(out["valve_lift"] - s)) < 1e-3 and np.ptp(s) > 0.3  # it does open and close
+    s_fwd, s_rev = (np.clip((sign * out["dp"] - 2e5) / 1e6, 0.0, 1.0) for sign in (1.0, -1.0))
+    assert np.max(np.abs(out["valve_lift"] - s_fwd)) < 1e-3 and np.max(np.abs(out["valve_lift_reverse"] - s_rev)) < 1e-3
+    assert np.ptp(s_fwd + s_rev) > 0.3  # they do open and close
 
 
 def test_tolerance_convergence_with_three_effects():
@@ -333,7 +335,7 @@ def test_every_effect_at_once_runs_and_reports_every_state():
     # every effect but the two-state base (one base at a time) and the mount (not with friction or the filter)
     assert list(effects) == [n for n in EFFECT_PARAMS if n not in ("two_state_damper", "series_compliance")]
     out = run(effects, return_states=True)
-    assert set(out) == {"t", "force", *state_names(effects)} and len(state_names(effects)) == 9
+    assert set(out) == {"t", "force", *state_names(effects)} and len(state_names(effects)) == 11
     assert all(np.all(np.isfinite(v)) for v in out.values())
 
 
