@@ -10,9 +10,9 @@ table's rule (:func:`judge`). Every draw is:
   pressure U(0.4, 0.9) MPa;
 - at most one rig effect, each family equally likely: none (a control), a compliant mount (series stiffness
   log-U(1e7, 3e7) N/m), check valves on the flow path (the reference's poppet: 1.5-4 Hz, damping 0.3-0.7, cracking
-  log-U(10, 100) kPa, a span that settles on every plateau; a valve for each flow direction, or in one valve case
-  of two one valve element passing either direction, whose lift a reversal finds open: a form the library does not
-  hold), seal friction (Stribeck force 150-300 N at 3-8 mm/s,
+  log-U(10, 100) kPa, a span that settles on every plateau; in one valve case of two a check valve for each flow
+  direction, in the other one valve element passing either direction), seal friction (Stribeck force 150-300 N at
+  3-8 mm/s,
   viscous 5-20 N s/m) or a servo that follows its command (bandwidth 3-8 Hz, damping 0.25-0.6);
 - the measurement: 100, 200, 250, 500 or 1000 Hz, force noise 8-20 N, displacement noise 0.2-0.5 µm, ADC steps of
   0, 2 or 4 N and 0, 0.5 or 1 µm, and an unzeroed load cell (±30-180 N) in two sets of three;
@@ -22,7 +22,7 @@ The ranges are the families' plausible sizes, set before any run and not adjuste
 when a control names nothing but the two-state physics (and the offset where the load cell has one), an effect's
 family is named with at most those besides it, the pooled J after falls to at most half of the baseline's where
 there is an effect, and the selected model's pooled J is within 2x of the true model's on the same samples (the
-library holds every drawn form but the single valve element). A drawn effect that is not named is "below the floor", not a failure, when the
+library holds every drawn form). A drawn effect that is not named is "below the floor", not a failure, when the
 selected model's J is within 1 / (1 - 0.2) of the truth's: the draw made it too small for the loop's stated
 criterion (an effect must lower J by a fifth), whatever the search did (:func:`judge`).
 
@@ -129,8 +129,8 @@ def main(argv: list[str] | None = None) -> int:
     for k in range(a.n):
         base, effects, ch = draw(rng)
         family = next(iter(effects), "none")
-        if effects.get("poppet_valve", {}).get("per_direction") == 0:
-            family += "-one-element"
+        if effects.get("poppet_valve", {}).get("per_direction") == 1:
+            family += "-per-direction"
         folder = out / f"case{k:02d}-{family}"
         shutil.rmtree(folder, ignore_errors=True)
         data, truth = tc._dataset(folder / "data", effects, 1.25, seed=a.seed * 1000 + k, base=base, ch=ch)

@@ -16,10 +16,10 @@ Model, SI units throughout. At time t, with the measured displacement y_A(t) and
   Q_L of L dQ_L/dt = Δp - Δp_O(Q_L), Δp_O(Q) = C_L Q + C_Q Q|Q| of eq. (4) (:func:`independent.quasi_static_dp`),
   which then replaces Q_O everywhere below; path flow
   Q = Q_O (ε + clip(x, 0, 1)) / (ε + s) [poppet_valve] + G_l Δp [leakage] + g y [unnamed_dynamics, placement 1];
-* the poppet valves: a check valve for each flow direction (``per_direction`` 1), lifts x_+ and x_- each a damped
-  oscillator ẍ = ω^2 (s_± - x) - 2ζω ẋ towards s_± = clip((±Δp - p_c) / p_s, 0, 1); the flow passes the valve of
-  its direction (x, s = x_+, s_+ for Δp >= 0, else x_-, s_-). With ``per_direction`` 0 one valve element passes
-  either direction, its lift x_+ driven by s(|Δp|) (x_- then unused);
+* the poppet valve: one valve element passing either direction, its lift x_+ a damped oscillator
+  ẍ = ω^2 (s - x) - 2ζω ẋ towards s = clip((|Δp| - p_c) / p_s, 0, 1) (x_- unused); with ``per_direction`` 1 a
+  check valve for each flow direction instead, lifts x_+ and x_- each driven towards s_± = clip((±Δp - p_c) / p_s,
+  0, 1), the flow passing the valve of its direction (x, s = x_+, s_+ for Δp >= 0, else x_-, s_-);
 * the unnamed filter: ẅ = ω^2 (L(u) - w) - 2ζω ẇ, output y = w (``mode`` 0) or y = w - L(u) (``mode`` 1, the
   transient: zero in steady state), added as g y to the force (placement 0) or to the path flow (placement 1);
 * B(p) = B_0 (1 + α_V) / (α_V + B_0 p_R / p^2); eq. (6) picks B_1, B_2 from p_R and p_R + |Δp| and
@@ -101,7 +101,7 @@ __all__ = [
 EFFECT_PARAMS: dict[str, dict[str, float | None]] = {
     "command_displacement": {"bandwidth_Hz": None, "damping_ratio": None},
     "poppet_valve": {"natural_frequency_Hz": None, "damping_ratio": None, "cracking_pressure_Pa": None,
-                     "span_Pa": 1e6, "bleed_fraction": 0.1, "per_direction": 1},
+                     "span_Pa": 1e6, "bleed_fraction": 0.1, "per_direction": 0},
     "accumulator": {"charge_pressure_Pa": None, "conductance_m3_per_s_Pa": None},
     "gas_spring": {"stiffness_N_per_m": None},
     "load_cell_offset": {"offset_N": None},

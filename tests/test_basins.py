@@ -133,3 +133,44 @@ def test_on_a_valve_the_search_afresh_leaves_a_wrong_basin(tmp_path):
     assert out.j_pooled < 0.8 * option.j_pooled
     assert out.j_pooled <= 1.5 * j_truth, (out.j_pooled, j_truth)
     assert not any(r["replaced"] for r in rows2) and again is out
+
+
+def test_the_poppet_valve_has_the_check_valves_as_its_variant_and_nothing_else_has_one():
+    assert basins.variants("poppet_valve") == ("check_valves",)
+    assert basins.variants("two_state") == () and basins.variants("check_valves") == ()
+
+
+@pytest.mark.parametrize(("variant", "replaced"), [(-1500.0, True), (-1005.0, False)])
+def test_a_variant_is_searched_in_the_effects_place_and_replaces_it_only_by_very_strong_evidence(variant, replaced):
+    """The option two-state + poppet valve at ΔBIC_eff −1000: the check valves are searched in the valve's place,
+    from the valve's own starts and its optimum as a grid point, the two-state model at the option's optimum, scored
+    as the option's new effects; a variant at ``variant`` replaces it only when more than 10 lower."""
+    calls = []
+    found = _fit("two_state+check_valves", variant, {"two_state": dict(OPTION["two_state"]),
+                                                      "check_valves": dict(OPTION["poppet_valve"])})
+
+    def search(cand, start, new):
+        calls.append((tuple(sp.label for sp in cand), start, new, cand[1].points, cand[1].poles))
+        return found
+
+    option = _fit("two_state+poppet_valve", -1000.0, OPTION)
+    valve = CandidateSpec("poppet_valve", poles=((2.0, 0.3),))
+    out, rows, added = basins.search_variants(search, option, [], [CandidateSpec("two_state"), valve])
+    assert calls == [(("two_state", "check_valves"), {"two_state": OPTION["two_state"]},
+                      ("two_state", "check_valves"), (OPTION["poppet_valve"],), ((2.0, 0.3),))]
+    assert out is (found if replaced else option)
+    assert set(added) == ({"check_valves"} if replaced else set())
+    assert rows == [{"candidate": "poppet_valve", "variant": "check_valves", "delta_BIC_eff": -1000.0,
+                     "J_pooled": option.j_pooled, "variant_delta_BIC_eff": variant,
+                     "variant_J_pooled": found.j_pooled, "replaced": replaced}]
+
+
+def test_an_option_without_variants_is_not_searched_again():
+    def search(cand, start, new):
+        raise AssertionError("no variant to search")
+
+    option = _fit("two_state+series_compliance", -500.0, {"two_state": dict(OPTION["two_state"]),
+                                                          "series_compliance": {"stiffness_N_per_m": 2e7}})
+    out, rows, added = basins.search_variants(search, option, [], [CandidateSpec("two_state"),
+                                                                   CandidateSpec("series_compliance")])
+    assert out is option and rows == [] and added == {}

@@ -49,6 +49,7 @@ RATE, AMPLITUDE, REST, NOISE_N = 200.0, 5.0e-3, 1.0137, 15.0
 #: Families: what counts as naming an injected effect. Flow-path dynamics the library does not hold may be
 #: named by the generic effect on any placement or by a valve effect (both are flow-path dynamics).
 FAMILY = {"friction": "friction", "seal_friction": "friction", "valve_dynamics": "valve", "poppet_valve": "valve",
+          "check_valves": "valve",
           "actuator_lag": "displacement", "command_displacement": "displacement", "backlash": "displacement",
           "accumulator": "two-state physics", "series_compliance": "compliance", "inertia": "inertia",
           "gas_spring": "gas spring", "load_cell_offset": "offset", "mains_interference": "mains",
@@ -102,10 +103,12 @@ TWO_STATE_CASES = {
     "control two-state k1.4 gas-b": (two_state_base(1.4, "gas-b"), {}, 1.25),
     "two-state + mount 2e7 N per m": (two_state_base(1.4, "gas-a"), {"series_compliance": {"stiffness_N_per_m": 2.0e7}},
                                       1.25),
-    # rig-A's check valve: 2 Hz, ζ 0.5, cracking 15 kPa; the span as the poppet case above (settles on every plateau)
+    # rig-A's check valves (one per flow direction): 2 Hz, ζ 0.5, cracking 15 kPa; the span as the poppet case above
+    # (settles on every plateau)
     "two-state + check valve 2 Hz": (two_state_base(1.25, "gas-b"),
                                      {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5,
-                                                       "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7}}, 1.25),
+                                                       "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7,
+                                                       "per_direction": 1}}, 1.25),
     # a lightly damped valve with a large bleed that opens fully within a fraction of the plateaus' |Δp| (the kind of
     # valve rig-A's residual points to), on another gas and rate than rig-A
     "two-state + open valve 1.8 Hz": (two_state_base(1.1, "gas-a"),
@@ -161,7 +164,8 @@ WIDE_CASES = {
     # the check valve like rig-A's of the two-state table, on eleven speeds (33 transients, about 10 min)
     "two-state + check valve 2 Hz, 11 speeds": (
         two_state_base(1.25, "gas-b"), {"poppet_valve": {"natural_frequency_Hz": 2.0, "damping_ratio": 0.5,
-                                                         "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7}}, 1.25,
+                                                         "cracking_pressure_Pa": 1.5e4, "span_Pa": 3.0e7,
+                                                         "per_direction": 1}}, 1.25,
         Channels(speeds=ELEVEN_SPEEDS, force_sd=12.0,
                  displacement_sd=0.3e-6, force_step=2.0, displacement_step=0.5e-6, offset=40.0)),
     # 100 Hz, the slowest rate served (a 3 s window is 300 samples): coarser steps on both channels, more force noise

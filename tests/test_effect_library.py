@@ -96,20 +96,21 @@ def test_new_effects_match_the_independent_reference(name, effects, start):
     assert size > 500 * REF_RTOL, (name, start, size)  # the effect is visible at this tolerance
 
 
-def test_after_a_reversal_the_flow_meets_the_closed_valve_of_its_new_direction():
-    """A check valve for each flow direction: after a reversal the flow passes the other valve, which opens from its
-    seat while the one that carried the flow closes. One valve element passing either direction (the reference's
-    ``per_direction`` 0) would meet an open valve instead. After a start from rest the two are the same; after a
-    reversal the kernel follows the check valves, and the single element differs by far more than the tolerance."""
-    valves = {"poppet_valve": NEW["poppet_valve"]}
-    one_element = {"poppet_valve": {**NEW["poppet_valve"], "per_direction": 0}}
+def test_after_a_reversal_the_flow_meets_the_closed_check_valve_of_its_new_direction():
+    """``check_valves``, a check valve for each flow direction (the reference's poppet with ``per_direction`` 1):
+    after a reversal the flow passes the other valve, which opens from its seat while the one that carried the flow
+    closes. The poppet valve's one element, passing either direction, meets an open valve instead. After a start
+    from rest the two are the same; after a reversal the kernel follows the reference's check valves, and the single
+    element differs from them by far more than the tolerance."""
+    valves = {"check_valves": NEW["poppet_valve"]}
+    per_direction = {"poppet_valve": {**NEW["poppet_valve"], "per_direction": 1}}
     for start, differs in (("rest", False), ("reversal", True)):
         t0, v_prev = STARTS[start]
         dp0 = float(quasi_static_dp(D.piston_area * v_prev, REF_FLOW))
-        ref = _reference(valves, t0, v_prev, dp0)
+        ref = _reference(per_direction, t0, v_prev, dp0)
         assert float(np.linalg.norm(_ours(valves, t0, v_prev, dp0) - ref) / np.linalg.norm(ref)) < REF_RTOL
         ramp = _times(t0) < t0 + AMP / SPEED  # up to the next reversal
-        gap = float(np.linalg.norm((_reference(one_element, t0, v_prev, dp0) - ref)[ramp])
+        gap = float(np.linalg.norm((_ours({"poppet_valve": NEW["poppet_valve"]}, t0, v_prev, dp0) - ref)[ramp])
                     / np.linalg.norm(ref[ramp]))
         assert (gap > 500 * REF_RTOL) if differs else (gap < REF_RTOL), (start, gap)
 

@@ -18,6 +18,12 @@ underdamped-looking residual pole led a search afresh to a valve five times its 
 to the true one). The search replaces the option's fit only when its evidence is very strong, ΔBIC_eff lower by more
 than |:data:`REPLACE_DELTA_BIC`| (both fits carry the same parameters, so this is a difference of fit alone): a fit
 the option already reached is not replaced by one that differs from it only by the search's tolerance.
+
+An effect can also have variants: another structure with the same parameters, declared by the variant's module
+(``VARIANT_OF``: :mod:`~bayesdamper.physics.effects.check_valves`, a check valve for each flow direction, of the poppet
+valve's one element). A variant is not a candidate of its own; once a round has selected an option holding the
+effect, each variant is searched in its place (:func:`search_variants`, the same starts as the effect's and its
+optimum among them, the option's other effects at their optimum) and replaces it on the same very strong evidence.
 """
 
 from __future__ import annotations
@@ -64,3 +70,41 @@ def research_basins(search, fit, held: list[CandidateSpec], new: list[CandidateS
         if better:
             fit = again
     return fit, rows
+
+
+def variants(effect: str) -> tuple[str, ...]:
+    """The effects whose module declares itself a variant of ``effect`` (``VARIANT_OF``), in registry order."""
+    from bayesdamper.physics.effects import EFFECT_MODULES
+
+    return tuple(n for n, m in EFFECT_MODULES.items() if getattr(m, "VARIANT_OF", None) == effect)
+
+
+def search_variants(search, fit, held: list[CandidateSpec],
+                    new: list[CandidateSpec]) -> tuple[object, list[dict], dict[str, CandidateSpec]]:
+    """The option ``fit`` with each variant (:func:`variants`) of each of its new effects searched in the effect's
+    place (module docstring): the variant's spec is the effect's (its starts, poles, thresholds and grid points) with
+    the effect's optimum in the option as one more grid point; every other effect starts at the option's optimum.
+    ``search(specs, start, new=labels)`` as for :func:`research_basins`, ``new`` the option's labels with the
+    variant's (its parameters are the ones scored).
+
+    Returns the better fit (a variant's replaces the option's only when its ΔBIC_eff is lower by more than
+    |:data:`REPLACE_DELTA_BIC`|), a row per variant searched for the report (``candidate``, ``variant``, the two fits'
+    ΔBIC_eff and pooled J, ``replaced``) and ``{label: spec}`` of the variants that replaced an effect."""
+    cand = held + list(new)
+    rows, added = [], {}
+    for sp in new:
+        for name in variants(sp.effect):
+            var = dataclasses.replace(sp, label=name + sp.label[len(sp.effect):],
+                                      points=tuple(sp.points) + (dict(fit.effects[sp.effect]),))
+            again = search([var if o is sp else o for o in cand],
+                           {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp},
+                           new=tuple(var.label if lab == sp.label else lab for lab in fit.labels))
+            better = again.delta_bic - fit.delta_bic < REPLACE_DELTA_BIC
+            rows.append({"candidate": sp.label, "variant": var.label, "delta_BIC_eff": float(fit.delta_bic),
+                         "J_pooled": float(fit.j_pooled), "variant_delta_BIC_eff": float(again.delta_bic),
+                         "variant_J_pooled": float(again.j_pooled), "replaced": bool(better)})
+            if better:
+                fit, added[var.label] = again, var
+                cand = [var if o is sp else o for o in cand]
+                break
+    return fit, rows, added

@@ -44,7 +44,7 @@ from bayesdamper.diagnosis.attribution import (
     se_margin,
     velocity_folds,
 )
-from bayesdamper.diagnosis.basins import research_basins
+from bayesdamper.diagnosis.basins import research_basins, search_variants
 from bayesdamper.diagnosis.candidates import (
     GLOBAL_LM_ITER,
     LM_ITER,
@@ -295,6 +295,10 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                          new=fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):])
+        search_step("the selection's effects searched as their variants")
+        fit, best["variants"], added = search_variants(search, fit, sel_specs, cand[len(sel_specs):])
+        specs.update(added)
+        cand = sel_specs + [specs[lab] for lab in fit.labels]
         # refined to LM_DTOL (the search stopped at LM_DTOL_SEARCH), intervals there (several: the others free)
         several = sum(len(search_params(sp)) for sp in cand) > 1
         progress(f"diagnose: round {rnd + 1}, intervals of {best['effect']}")
@@ -310,7 +314,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             selected.append(lab)
             sel_specs.append(specs[lab])
         fixed = {k: dict(v) for k, v in fit.effects.items()}
-        chosen = {specs[lab].effect for lab in fit.labels}
+        chosen = {specs[lab].effect for lab in fit.labels} | {specs[v["candidate"]].effect for v in best["variants"]}
         remaining = [n for n in remaining if specs[n].effect not in chosen]
         engine.set_warm(fit.warm)
         sse, xs, resid = engine.evaluate(effect_argument(fixed), flow_for(fixed), keep=True)

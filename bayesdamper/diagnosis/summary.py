@@ -342,6 +342,12 @@ def report_text(d: dict) -> str:
                              f"{b['afresh_J_pooled']:.4f} (delta-BIC_eff {b['delta_BIC_eff']:+.0f} -> "
                              f"{b['afresh_delta_BIC_eff']:+.0f}): " + ("another basin, which replaces the option's fit"
                                                                       if b["replaced"] else "the option's fit stands"))
+            for v in c.get("variants") or []:
+                lines.append(f"  round {k + 1}: {v['candidate']} of {c['effect']} searched as {v['variant']} in its "
+                             f"place, the option's other effects at its optimum: J {v['J_pooled']:.4f} -> "
+                             f"{v['variant_J_pooled']:.4f} (delta-BIC_eff {v['delta_BIC_eff']:+.0f} -> "
+                             f"{v['variant_delta_BIC_eff']:+.0f}): " + (f"{v['variant']} replaces it" if v["replaced"]
+                                                                       else "the option's fit stands"))
     for r in (d.get("rounds") or [])[-1:]:
         for b in r.get("backward_check") or []:
             lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "

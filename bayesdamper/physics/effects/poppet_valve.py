@@ -1,25 +1,20 @@
-"""Poppet valves: a mass-spring check valve with a cracking pressure for each flow direction on the flow path.
+"""Poppet valve: a mass-spring check valve with a cracking pressure on the flow path.
 
-A check valve opens for one direction of flow only, so the path holds one for each direction, alike (one set of
-parameters). The lift x_+ [-] of the valve that passes flow from chamber 1 to chamber 2 (0 closed, 1 fully open)
-and the lift x_- of the other are damped oscillators, each driven towards the steady opening of its own
-direction's pressure difference::
+The valve lift x [-] (0 closed, 1 fully open) is a damped oscillator driven towards the steady opening
+of the pressure difference::
 
-    d²x_±/dt² + 2 ζ_v ω_v dx_±/dt + ω_v² x_± = ω_v² s(±Δp),    s(u) = clip((u - p_c) / p_s, 0, 1)
+    d²x/dt² + 2 ζ_v ω_v dx/dt + ω_v² x = ω_v² s(Δp),    s(Δp) = clip((|Δp| - p_c) / p_s, 0, 1)
 
 with natural frequency f_v = ω_v / 2π [Hz], damping ratio ζ_v, cracking pressure p_c [Pa] and the span
-p_s [Pa] over which a valve goes from closed to fully open. The path's flow goes through the valve of its
-direction (x = x_+, s = s(Δp) for Δp >= 0; x = x_-, s = s(-Δp) otherwise)::
+p_s [Pa] over which the valve goes from closed to fully open. The path's flow is
 
-    Q = Q_O(Δp) (ε + clip(x, 0, 1)) / (ε + s)
+    Q = Q_O(Δp) (ε + clip(x, 0, 1)) / (ε + s(Δp))
 
 with ε the bleed: the flow that passes the closed valve, as a fraction of the flow the fully open valve adds.
 On every steady plateau (x = s) it is exactly eq. (8), so the static coefficients keep their meaning; after a
 step the lift lags and may ring (pressure pulses at the valve's frequency whose size grows with |Δp| beyond
 p_c). A small ε makes the valve carry nearly all the flow, a large one makes it a small addition to a
-bleed orifice. After a reversal the flow meets the other valve, closed on its seat, while the one that carried
-it closes with its own dynamics: the new direction's valve opens from rest, as it does after a start from rest.
-Q is continuous where Δp changes sign (Q_O(0) = 0).
+bleed orifice.
 
 At a fixed lift the flow falls as Δp opens s, so a plateau inside the span is statically stable only while
 the orifice flow grows faster than the opening, d ln Q_O/dΔp > d ln(ε + s)/dΔp; for a quadratic orifice this
@@ -39,9 +34,8 @@ from bayesdamper.physics.effects.signals import DP, Q
 
 __all__ = ["EFFECT", "STATES", "flow", "initial", "state_atol", "steady_lift"]
 
-#: States: the lift x_+ [-] of the valve that passes flow from chamber 1 to chamber 2 and its rate [1/s], then the
-#: other valve's.
-STATES = ("lift", "lift_rate_per_s", "reverse_lift", "reverse_lift_rate_per_s")
+#: States: lift x [-] and its rate [1/s].
+STATES = ("lift", "lift_rate_per_s")
 
 EFFECT = Effect(
     name="poppet_valve",
@@ -67,45 +61,30 @@ EFFECT = Effect(
 
 @njit(cache=True, error_model="numpy")
 def steady_lift(dp: float, p_c: float, p_s: float) -> float:
-    """Steady lift s(Δp) [-] of the valve that passes flow for Δp > 0 (module docstring; the other's is
-    ``steady_lift(-dp, ...)``)."""
-    return min(max((dp - p_c) / p_s, 0.0), 1.0)
+    """Steady lift s(Δp) [-] (module docstring)."""
+    return min(max((abs(dp) - p_c) / p_s, 0.0), 1.0)
 
 
 @njit(cache=True, error_model="numpy")
 def flow(sig, z, p, dz):
-    """Flow through the valve of the flow's direction and both lifts' derivatives (hook of
-    :mod:`bayesdamper.physics.effects.signals`)."""
+    """Flow through the valve and the lift's derivatives (hook of :mod:`bayesdamper.physics.effects.signals`)."""
     w = 2.0 * math.pi * p[0]
-    c = 2.0 * p[1] * w
-    dp = sig[DP]
-    s_fwd = steady_lift(dp, p[2], p[3])
-    s_rev = steady_lift(-dp, p[2], p[3])
+    s = steady_lift(sig[DP], p[2], p[3])
     dz[0] = z[1]
-    dz[1] = w * w * (s_fwd - z[0]) - c * z[1]
-    dz[2] = z[3]
-    dz[3] = w * w * (s_rev - z[2]) - c * z[3]
-    if dp >= 0.0:
-        x, s = z[0], s_fwd
-    else:
-        x, s = z[2], s_rev
-    return sig[Q] * (p[4] + min(max(x, 0.0), 1.0)) / (p[4] + s)
+    dz[1] = w * w * (s - z[0]) - 2.0 * p[1] * w * z[1]
+    x = min(max(z[0], 0.0), 1.0)
+    return sig[Q] * (p[4] + x) / (p[4] + s)
 
 
 @njit(cache=True, error_model="numpy")
 def initial(sig, p, z):
-    """Both valves at rest at their steady lifts (the one of the other direction closed)."""
+    """Valve at rest at its steady lift."""
     z[0] = steady_lift(sig[DP], p[2], p[3])
     z[1] = 0.0
-    z[2] = steady_lift(-sig[DP], p[2], p[3])
-    z[3] = 0.0
 
 
 @njit(cache=True, error_model="numpy")
 def state_atol(p, atol, out):
-    """Tolerances of the lifts [-] and their rates [1/s]."""
-    rate = 1.0e-7 * max(2.0 * math.pi * p[0], 1.0)
+    """Tolerances of the lift [-] and its rate [1/s]."""
     out[0] = 1.0e-7
-    out[1] = rate
-    out[2] = 1.0e-7
-    out[3] = rate
+    out[1] = 1.0e-7 * max(2.0 * math.pi * p[0], 1.0)
