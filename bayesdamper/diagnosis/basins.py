@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 
 from bayesdamper.diagnosis.candidates import CandidateSpec, search_params
-from bayesdamper.diagnosis.global_stage import narrow_kind
+from bayesdamper.diagnosis.global_stage import narrow_kind, search_step
 
 #: ΔBIC_eff by which a search afresh must beat the option's own fit to replace it (the loop's SELECT_DELTA_BIC,
 #: -10: "very strong" on the Kass & Raftery scale).
@@ -90,6 +90,7 @@ def search_variants(search, fit, held: list[CandidateSpec],
     Returns the better fit (a variant's replaces the option's only when its ΔBIC_eff is lower by more than
     |:data:`REPLACE_DELTA_BIC`|), a row per variant searched for the report (``candidate``, ``variant``, the two fits'
     ΔBIC_eff and pooled J, ``replaced``) and ``{label: spec}`` of the variants that replaced an effect."""
+    search_step("the selection's effects searched as their variants")
     cand = held + list(new)
     rows, added = [], {}
     for sp in new:

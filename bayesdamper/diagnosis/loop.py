@@ -17,11 +17,10 @@ must also meet the criterion over its better member alone (:func:`check_pairs`).
 can still decide get the simplex that finishes a refinement that did not converge (:func:`polish_contenders`).
 Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected has its narrow-basin effects searched
-afresh from its optimum (:mod:`bayesdamper.diagnosis.basins`) and is refined to the reported tolerance
-(:data:`~bayesdamper.diagnosis.engine.LM_DTOL`) before its values and intervals are taken, and the held-out folds keep
-the reported one. The search repeats until nothing passes (at most ``MAX_ROUNDS``); then every selected effect must
-still meet the criterion against the model without it (:func:`backward_check`: a later effect may explain what an
-earlier one approximated).
+afresh and its effects' variants in their place (:mod:`bayesdamper.diagnosis.basins`), and is refined to the reported
+tolerance (:data:`~bayesdamper.diagnosis.engine.LM_DTOL`), which the held-out folds keep, before its values and
+intervals are taken. Rounds repeat until nothing passes (at most ``MAX_ROUNDS``); then every selected effect must meet
+the criterion against the model without it (:func:`backward_check`: a later effect may explain an earlier one).
 """
 
 from __future__ import annotations
@@ -200,8 +199,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         search_step("candidates screened with the selected effects held" if sel_specs else "candidates searched")
         for label in remaining:
             progress(f"diagnose: round {rnd + 1}, fitting {label}")
-            # after the first round: screened with the selected effects held at their values, by the grid alone,
-            # its optimum of the round before among the grid's points ...
+            # after the first round: screened with the selected effects held, by the grid (its last optimum in it) ...
             spec, again = screen_spec(specs[label], earlier, ts_screen, sel_specs)
             fits.append(search_option(engine, [spec], {}, fixed, current["sse"], n_eff, flow_for,
                                       grid_only=bool(sel_specs), polish=False, points_only=again))
@@ -295,9 +293,11 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                          new=fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):])
-        search_step("the selection's effects searched as their variants")
         fit, best["variants"], added = search_variants(search, fit, sel_specs, cand[len(sel_specs):])
-        specs.update(added)
+        if added:  # the option as selected is the rule's choice with a variant in an effect's place
+            specs.update(added)
+            best["variant_of"] = best["effect"]
+            best["effect"] = rounds[-1]["selected"] = "+".join(fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
         # refined to LM_DTOL (the search stopped at LM_DTOL_SEARCH), intervals there (several: the others free)
         several = sum(len(search_params(sp)) for sp in cand) > 1

@@ -316,7 +316,9 @@ def report_text(d: dict) -> str:
     for r in d.get("rounds", []):
         for c in r["candidates"]:
             if "lovo" in c:
-                lines.append(f"  round {d['rounds'].index(r) + 1}: {c['effect']}: leave-velocities-out gain "
+                name = (f"{c['effect']} (selected as {c['variant_of']}, whose held-out gain this is)"
+                        if "variant_of" in c else c["effect"])
+                lines.append(f"  round {d['rounds'].index(r) + 1}: {name}: leave-velocities-out gain "
                              f"{c['lovo']['gain']:+.1f} (se {c['lovo']['se']:.1f}), J {c['J_pooled']:.4f}"
                              + (" <- selected" if c["effect"] == r.get("selected") else ""))
             if "against_runner_up" in c:
@@ -336,14 +338,15 @@ def report_text(d: dict) -> str:
                             if lr["indistinguishable_from"] else "."))
     for k, r in enumerate(d.get("rounds", [])):
         for c in (c for c in r["candidates"] if c["effect"] == r.get("selected")):
+            option = c.get("variant_of", c["effect"])
             for b in c.get("basins_afresh") or []:
-                lines.append(f"  round {k + 1}: {b['candidate']} of {c['effect']} searched afresh from the data's "
+                lines.append(f"  round {k + 1}: {b['candidate']} of {option} searched afresh from the data's "
                              f"starts, the option's other effects at its optimum: J {b['J_pooled']:.4f} -> "
                              f"{b['afresh_J_pooled']:.4f} (delta-BIC_eff {b['delta_BIC_eff']:+.0f} -> "
                              f"{b['afresh_delta_BIC_eff']:+.0f}): " + ("another basin, which replaces the option's fit"
                                                                       if b["replaced"] else "the option's fit stands"))
             for v in c.get("variants") or []:
-                lines.append(f"  round {k + 1}: {v['candidate']} of {c['effect']} searched as {v['variant']} in its "
+                lines.append(f"  round {k + 1}: {v['candidate']} of {option} searched as {v['variant']} in its "
                              f"place, the option's other effects at its optimum: J {v['J_pooled']:.4f} -> "
                              f"{v['variant_J_pooled']:.4f} (delta-BIC_eff {v['delta_BIC_eff']:+.0f} -> "
                              f"{v['variant_delta_BIC_eff']:+.0f}): " + (f"{v['variant']} replaces it" if v["replaced"]
