@@ -32,9 +32,10 @@ from numba import njit
 
 from bayesdamper.physics.effects import poppet_valve
 from bayesdamper.physics.effects.base import Effect
+from bayesdamper.physics.effects.poppet_valve import steady_lift
 from bayesdamper.physics.effects.signals import DP, Q
 
-__all__ = ["EFFECT", "STATES", "VARIANT_OF", "flow", "initial", "state_atol", "steady_lift"]
+__all__ = ["EFFECT", "STATES", "VARIANT_OF", "flow", "initial", "state_atol"]
 
 #: States: the lift x_+ [-] of the valve that passes flow from chamber 1 to chamber 2 and its rate [1/s], then the
 #: other valve's.
@@ -53,21 +54,14 @@ VARIANT_OF = "poppet_valve"
 
 
 @njit(cache=True, error_model="numpy")
-def steady_lift(dp: float, p_c: float, p_s: float) -> float:
-    """Steady lift s(Δp) [-] of the valve that passes flow for Δp > 0 (module docstring; the other's is
-    ``steady_lift(-dp, ...)``)."""
-    return min(max((dp - p_c) / p_s, 0.0), 1.0)
-
-
-@njit(cache=True, error_model="numpy")
 def flow(sig, z, p, dz):
     """Flow through the valve of the flow's direction and both lifts' derivatives (hook of
     :mod:`bayesdamper.physics.effects.signals`)."""
     w = 2.0 * math.pi * p[0]
     c = 2.0 * p[1] * w
     dp = sig[DP]
-    s_fwd = steady_lift(dp, p[2], p[3])
-    s_rev = steady_lift(-dp, p[2], p[3])
+    s_fwd = steady_lift(max(dp, 0.0), p[2], p[3])  # s of each direction's own Δp (p_c >= 0)
+    s_rev = steady_lift(max(-dp, 0.0), p[2], p[3])
     dz[0] = z[1]
     dz[1] = w * w * (s_fwd - z[0]) - c * z[1]
     dz[2] = z[3]
@@ -82,9 +76,9 @@ def flow(sig, z, p, dz):
 @njit(cache=True, error_model="numpy")
 def initial(sig, p, z):
     """Both valves at rest at their steady lifts (the one of the other direction closed)."""
-    z[0] = steady_lift(sig[DP], p[2], p[3])
+    z[0] = steady_lift(max(sig[DP], 0.0), p[2], p[3])
     z[1] = 0.0
-    z[2] = steady_lift(-sig[DP], p[2], p[3])
+    z[2] = steady_lift(max(-sig[DP], 0.0), p[2], p[3])
     z[3] = 0.0
 
 
