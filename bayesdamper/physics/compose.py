@@ -108,6 +108,12 @@ class ComposedEffects:
         """The kernel's runtime layout of these effects (:func:`layout`)."""
         return layout(self.names)[0]
 
+    @functools.cached_property
+    def kernel_inputs(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """What every solve of these effects hands the kernel: the values and the layout (read-only) and the
+        total compliance [m/N]."""
+        return readonly(self.values), readonly(self.layout, np.int64), self.compliance()
+
     def _slices(self):
         i = 0
         for name in self.names:
@@ -254,16 +260,22 @@ def kernel_source() -> str:
               "    p2 = 0.0"]
     lines += guarded("pressures", lambda i, a, n: [f"p1, p2 = {a}.pressures(sig, {z(i, n)}, {p(i)})",
                                                    "absolute = True"])
+    # the moduli of eq. (3) or eq. (6), unless an active effect's moduli hook sets them (below)
+    own = " or ".join(f"lay[{i}, 0]" for i, (_, mod, _) in enumerate(rows) if has(mod, "moduli")) or "False"
     lines += ["    if absolute:",
               "        sig[P1] = p1",
               "        sig[P2] = p2",
-              "        b1 = _bulk(max(p1, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
-              "        b2 = _bulk(max(p2, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
-              "    else:  # eq. (6)",
-              "        loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
-              "        unloaded = _bulk(p_r, b0, alpha, p_r)",
-              "        b1 = loaded if dp >= 0.0 else unloaded",
-              "        b2 = unloaded if dp >= 0.0 else loaded"]
+              "    b1 = 0.0",
+              "    b2 = 0.0",
+              f"    if not ({own}):",
+              "        if absolute:",
+              "            b1 = _bulk(max(p1, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
+              "            b2 = _bulk(max(p2, PRESSURE_FLOOR_PA), b0, alpha, p_r)",
+              "        else:  # eq. (6)",
+              "            loaded = _bulk(p_r + abs(dp), b0, alpha, p_r)",
+              "            unloaded = _bulk(p_r, b0, alpha, p_r)",
+              "            b1 = loaded if dp >= 0.0 else unloaded",
+              "            b2 = unloaded if dp >= 0.0 else loaded"]
     lines += guarded("moduli", lambda i, a, n: [f"b1, b2 = {a}.moduli(sig, {z(i, n)}, {p(i)})"])
     lines += ["    q1 = 0.0", "    q2 = 0.0"]
     lines += guarded("chamber_flows", lambda i, a, n: [f"a1, a2 = {a}.chamber_flows(sig, {z(i, n)}, {p(i)})",
@@ -391,14 +403,15 @@ def solve_composed(composed: ComposedEffects, t_out: np.ndarray, drive: Piecewis
     solve it is differenced against); where they do not fit this solve it is solved again with error control.
     """
     mod = kernel()
-    comp = composed.compliance()
-    base = np.array([damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2,
-                     damper.liquid_bulk_modulus, alpha_v, p_r, *np.asarray(flow4, dtype=float), comp])
-    if not (np.all(np.isfinite(base)) and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
+    values, lay, comp = composed.kernel_inputs
+    flow4 = np.asarray(flow4, dtype=float)
+    base = np.array((damper.piston_area, damper.chamber_volume_1, damper.chamber_volume_2,
+                     damper.liquid_bulk_modulus, alpha_v, p_r, flow4[0], flow4[1], flow4[2], flow4[3], comp))
+    if not (np.isfinite(base).all() and alpha_v > 0 and p_r > 0 and comp >= 0 and math.isfinite(dp0)):
         return np.full(np.shape(t_out), np.nan), 5
     # the kernels' inputs are read-only whatever the caller's arrays are: one numba type each, one compilation
-    t_out, base, values = readonly(t_out), readonly(base), readonly(composed.values)
-    lay = readonly(composed.layout, np.int64)
+    t_out = readonly(t_out)
+    base.flags.writeable = False
     if composed.force_only and t_out.size and t0 <= t_out[0] and t_out[-1] <= drive.end:
         w = drive.window(t0, float(max(t_out[-1], t0 + 1e-9)))  # eq. (7) starts at the input's first break
         force, status = mod.solve_force_only(t_out, readonly(w.breaks), readonly(w.coefs),

@@ -304,6 +304,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
         return out, STATUS_NONFINITE, n_rec
     i_out = 0
     n_steps = 0
+    cd3 = cd4 = 0.0
     while a < m:
         b = _next_restart(restart, a)
         seg[0] = a
@@ -362,15 +363,17 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                 if t + 1.0001 * h >= tb:
                     h = tb - t
                     last = True
-            # f, forward-difference Jacobian and time derivative at (t, x)
-            if not _rhs(t, x, f0, sig, prm, base, brk, coef, seg, lay):
+            # f, forward-difference Jacobian and time derivative at (t, x); the input at t once for f and the columns
+            ya, va, aa, jd = _drive(t, brk, coef, seg[0], seg[1], seg[2])
+            seg[2] = jd
+            if not _rhs_at(t, x, f0, sig, prm, base, ya, va, aa, lay):
                 return out, STATUS_NONFINITE, n_rec
             for j in range(ns):
                 dj = 1.49e-8 * max(abs(x[j]), sc_a[j] * 1e3)
                 for i in range(ns):
                     xp[i] = x[i]
                 xp[j] = x[j] + dj
-                if not _rhs(t, xp, f1, sig, prm, base, brk, coef, seg, lay):
+                if not _rhs_at(t, xp, f1, sig, prm, base, ya, va, aa, lay):
                     return out, STATUS_NONFINITE, n_rec
                 for i in range(ns):
                     jac[i, j] = (f1[i] - f0[i]) / dj
@@ -454,6 +457,8 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                 if n_rec < rec.shape[0]:
                     rec[n_rec] = t_new
                     n_rec += 1
+                if force_mode == FORCE_DP:  # F = A_P Δp: the dense output of Δp alone, its coefficients once a step
+                    cd3, cd4 = dense_coefficients(ks[0, 0], ks[1, 0], ks[2, 0], ks[3, 0], ks[4, 0])
                 while i_out < n_t and t_out[i_out] <= t_new:
                     s = (t_out[i_out] - t) / h
                     if force_mode != FORCE_DP:
@@ -470,8 +475,7 @@ def solve_composed(t_out, brk, coef, restart, t0, dp0, v_prev, base, prm, rtol, 
                         elif not _rhs(t_out[i_out], xd, f1, sig, prm, base, brk, coef, seg, lay):
                             return out, STATUS_NONFINITE, n_rec
                         out[i_out] = _force(sig, xd, prm, base, lay)
-                    else:  # F = A_P Δp: the dense output of Δp alone
-                        cd3, cd4 = dense_coefficients(ks[0, 0], ks[1, 0], ks[2, 0], ks[3, 0], ks[4, 0])
+                    else:
                         out[i_out] = base[B_AREA] * dense_value(x[0], x_new[0], cd3, cd4, s)
                     i_out += 1
                 for i in range(ns):
