@@ -133,22 +133,24 @@ def _projected_residual(a, S, R0, starts, lengths, b, given):  # pragma: no cove
             free[i, j] = acc
     last = -1
     Q = np.empty((0, n))
-    coef = np.empty(n)
+    coef = np.empty((n, k + 1))
     for t in range(starts.size):
         L, s0 = int(lengths[t]), int(starts[t])
         if L != last:
             Q = np.linalg.qr(np.ascontiguousarray(free[:L]))[0]
             last = L
-        for c in range(k + 1):  # Z[s0:s0+L, c] -= Q Qᵀ Z[s0:s0+L, c]
+        # Z[s0:s0+L] -= Q Qᵀ Z[s0:s0+L], row by row (the rows of Q and Z are contiguous)
+        coef[:] = 0.0
+        for i in range(L):
             for j in range(n):
-                acc = 0.0
-                for i in range(L):
-                    acc += Q[i, j] * Z[s0 + i, c]
-                coef[j] = acc
-            for i in range(L):
+                qij = Q[i, j]
+                for c in range(k + 1):
+                    coef[j, c] += qij * Z[s0 + i, c]
+        for i in range(L):
+            for c in range(k + 1):
                 acc = 0.0
                 for j in range(n):
-                    acc += Q[i, j] * coef[j]
+                    acc += Q[i, j] * coef[j, c]
                 Z[s0 + i, c] -= acc
     X = np.ascontiguousarray(Z[:, :k])
     y = np.ascontiguousarray(Z[:, k])
