@@ -286,6 +286,16 @@ def none_selected_lines(candidates: list[dict]) -> list[str]:
     return lines
 
 
+def zero_lines(d: dict) -> list[str]:
+    """The report's line on the force channel's zero where the diagnosis removed one (``load_cell_zero_N``)."""
+    zero = d.get("load_cell_zero_N")
+    if not (zero and zero.get("removed")):
+        return []
+    return [f"Load cell zero: the plateaus' intercepts measure F_0 = {zero['offset_N']:.1f} ± "
+            f"{zero['offset_se_N']:.1f} N (and a Coulomb friction of {zero['friction_N']:.1f} ± "
+            f"{zero['friction_se_N']:.1f} N); F_0 was removed from every force before the diagnosis."]
+
+
 def report_text(d: dict) -> str:
     """A short plain-text account of what the diagnosis found."""
     s = d["structure_before"]["summary"]
@@ -295,6 +305,7 @@ def report_text(d: dict) -> str:
              f"residual rms grows with speed as v^{s['rms_vs_speed_log_slope']:.2f}, centroid "
              f"{s['median_t_centroid_s']:.2f} s after the step, dominant frequency "
              f"{s['median_peak_frequency_Hz']:.2f} Hz."]
+    lines += zero_lines(d)
     off = d.get("stage1_offset_N")
     if off:
         lines.append(f"Stage 1: the plateaus hold a constant force offset F_0 = {off['value']:.1f} ± {off['se']:.1f} N "

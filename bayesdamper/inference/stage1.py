@@ -23,6 +23,12 @@ coefficients stage 1 gives are eq. (4)'s alone, the ones that meet the measured 
 windows are identified with, which has no offset (the windows' data keep it); the diagnosis tests the offset with
 the ``load_cell_offset`` effect and re-fits stage 1 on the plateaus with the offset removed. Plateaus that eq. (4)
 fits with non-negative coefficients get exactly that fit and no offset.
+
+The force channel's zero is also measured whatever eq. (4) alone gives (:func:`plateau_zero`): each direction's
+signed pressure drops fitted with their own intercept, Δp_d = C_L Q + C_Q Q^2 + b_d. An offset F_0 adds d F_0 / A_P
+to direction d and a Coulomb friction f adds f / A_P to both, so F_0 = A_P (b_+ - b_-) / 2 and f = A_P (b_+ + b_-) / 2
+whatever the friction (the fit with an offset above has no friction term and takes part of a friction for an
+offset). The diagnosis removes a zero measured there from the forces before it searches (:mod:`bayesdamper.run.plan`).
 """
 
 from __future__ import annotations
@@ -41,6 +47,9 @@ STATIC_NAMES = ("CL12", "CQ12", "CL21", "CQ21")
 
 #: Fewest plateaus per direction that leave at least one degree of freedom for the residual variance.
 MIN_PLATEAUS_PER_DIRECTION = 3
+#: Fewest plateaus per direction for the force channel's zero (:func:`plateau_zero`): three coefficients per direction
+#: and one degree of freedom for the residual variance.
+ZERO_MIN_PLATEAUS = 4
 #: A force offset is reported only this many standard errors from 0 (the |t| > 3 of the plateau drift rule): below
 #: it, the coefficient eq. (4) made negative is as well explained by noise about a small true value.
 OFFSET_MIN_T = 3.0
@@ -306,3 +315,58 @@ def fit_static(plateaus: Sequence, source: str = "plateaus") -> StaticFit:
         if off.explains:
             return StaticFit(fits[1], fits[-1], off)
     return static
+
+
+@dataclass(frozen=True)
+class ZeroFit:
+    """The force channel's zero and the Coulomb friction measured on the plateaus (:func:`plateau_zero`) [N].
+
+    ``offset_N`` is the force the channel reads at zero force (the ``load_cell_offset`` effect's ``offset_N``);
+    ``friction_N`` the direction-signed constant force common to both directions (friction opposing the motion is
+    positive); each with its standard error from the two directions' least-squares covariances."""
+
+    offset_N: float
+    offset_se_N: float
+    friction_N: float
+    friction_se_N: float
+
+    @property
+    def measured(self) -> bool:
+        """The offset lies more than :data:`OFFSET_MIN_T` standard errors from 0."""
+        return bool(abs(self.offset_N) > OFFSET_MIN_T * self.offset_se_N)
+
+    def as_dict(self) -> dict:
+        return {"offset_N": self.offset_N, "offset_se_N": self.offset_se_N, "friction_N": self.friction_N,
+                "friction_se_N": self.friction_se_N, "measured": self.measured}
+
+
+def _intercept(q: np.ndarray, dp: np.ndarray) -> tuple[float, float]:
+    """Intercept b of ``dp = C_L q + C_Q q^2 + b`` and its variance (columns scaled to unit norm for the solve)."""
+    X = np.column_stack([q, q * q, np.ones_like(q)])
+    scale = np.linalg.norm(X, axis=0)
+    if not np.all(scale > 0):
+        raise np.linalg.LinAlgError("a column of the plateaus' design is zero")
+    Xs = X / scale
+    theta, _, rank, _ = np.linalg.lstsq(Xs, dp, rcond=None)
+    if rank < 3:
+        raise np.linalg.LinAlgError("the plateaus' flow rates do not separate the coefficients")
+    r = dp - Xs @ theta
+    s2 = float(r @ r) / (q.size - 3)
+    cov = s2 * np.linalg.inv(Xs.T @ Xs)
+    return float(theta[2] / scale[2]), float(cov[2, 2] / scale[2] ** 2)
+
+
+def plateau_zero(plateaus: Sequence, area: float) -> ZeroFit | None:
+    """The force channel's zero and the Coulomb friction from both directions' plateau intercepts (module docstring)
+    for piston area ``area`` [m^2]; None with fewer than :data:`ZERO_MIN_PLATEAUS` plateaus in a direction or flow
+    rates that do not separate a direction's three coefficients."""
+    pts = _direction_points(plateaus)
+    if min(q.size for q, _ in pts.values()) < ZERO_MIN_PLATEAUS:
+        return None
+    try:
+        (b_f, v_f), (b_b, v_b) = (_intercept(*pts[d]) for d in (1, -1))
+    except np.linalg.LinAlgError:
+        return None
+    se = 0.5 * area * float(np.sqrt(v_f + v_b))
+    out = ZeroFit(0.5 * area * (b_f - b_b), se, 0.5 * area * (b_f + b_b), se)
+    return out if all(np.isfinite([out.offset_N, out.offset_se_N, out.friction_N])) else None

@@ -151,6 +151,7 @@ class Prepared:
     comparison: dict | None = None
     search_optima: list | None = None  # per window: its own parameters at the loop's final model (unpack_inner)
     bound_checks: list | None = None  # the selection's parameters on a bound, resolved or not (bound_resolution)
+    zero: dict | None = None  # the force channel's zero measured on the plateaus, and whether it was removed
 
     @property
     def speeds(self) -> list[float]:
@@ -191,12 +192,14 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     t0 = time.perf_counter()
     progress = progress or Progress()
     names = check_effects(effects)
-    from bayesdamper.run.plan import plan_dataset
+    from bayesdamper.run.plan import plan_dataset, zeroed
 
     with progress.phase("diagnose: load, windows, stage 1", unit="window") as ph:
-        plan = plan or plan_dataset(data_dir, tmax, mode)
+        plan = zeroed(plan or plan_dataset(data_dir, tmax, mode), tmax)  # an unzeroed load cell's zero removed
         ds, segs, windows, static = plan.ds, plan.segs, plan.windows, plan.static
         ph.done = len(windows)
+        if plan.zero_removed:
+            progress.note(f"load cell zero {plan.zero.offset_N:+.1f} N removed")
     if tests:
         missing = set(tests) - {w.test for w in windows}
         if missing:
@@ -212,8 +215,10 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     flow0 = static.coefficients if static is not None else None
     area = ds.damper.piston_area
 
-    # 1. the calibrated baseline: re-used from `identify` posteriors in OUT of the same settings, if any
-    base = _reuse_baseline(out_dir, windows, settings, tmax, seed, ds.sha256, plan.mode)
+    # 1. the calibrated baseline: re-used from `identify` posteriors in OUT of the same settings, if any (identify's
+    #    windows keep the load cell's zero: none where it was removed here)
+    base = ([None] * len(windows) if plan.zero_removed else
+            _reuse_baseline(out_dir, windows, settings, tmax, seed, ds.sha256, plan.mode))
     todo = [i for i, r in enumerate(base) if r is None]
     if len(todo) < len(base):
         progress(f"diagnose: re-using {len(base) - len(todo)} baseline posterior(s) from {out_dir / 'posteriors'}")
@@ -280,7 +285,8 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     static_for = stage_one_for(plateaus, area, str(ds.path)) if static is not None else (lambda e: None)
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
                     rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
-                    seed, credible_mass, progress, t0, compare=compare)
+                    seed, credible_mass, progress, t0, compare=compare,
+                    zero={**plan.zero.as_dict(), "removed": plan.zero_removed} if plan.zero is not None else None)
 
 
 def _loop_values(rounds: list, effect: str) -> dict | None:
@@ -373,6 +379,8 @@ def finish_diagnosis(p: Prepared, selected: list, fixed: dict, rounds: list, *, 
     diagnosis.update(extra or {})
     if p.comparison is not None:
         diagnosis["model_comparison"] = p.comparison
+    if p.zero is not None:  # the force channel's zero measured on the plateaus (removed from the forces if measured)
+        diagnosis["load_cell_zero_N"] = p.zero
     if p.static is not None and p.static.offset is not None:  # stage 1's finding: an offset in the plateaus
         value, se = p.static.offset_force(area)
         diagnosis["stage1_offset_N"] = {"value": value, "se": se, "held_at_zero": list(p.static.constrained)}

@@ -54,6 +54,10 @@ class DataPlan:
         Stage 1 from the plateaus (None without triangular tests).
     inputs : dict
         Per cycle-windowed record: how its input was reconstructed (JSON-safe).
+    zero : ZeroFit or None
+        The force channel's zero measured on the plateaus (:func:`zeroed`; None where not measured).
+    zero_removed : bool
+        The records' forces are the measured ones minus ``zero.offset_N``.
     """
 
     ds: object
@@ -64,6 +68,8 @@ class DataPlan:
     windows: list = field(default_factory=list)
     static: object = None
     inputs: dict = field(default_factory=dict)
+    zero: object = None
+    zero_removed: bool = False
 
     @property
     def transients(self) -> list:
@@ -88,7 +94,8 @@ class DataPlan:
                 "records": [{"name": k.name, "kind": k.kind, "description": k.description,
                              "details": k.details} for k in self.kinds],
                 "windows": [w.as_dict() for w in self.windows],
-                "stage1": self.static is not None, "inputs": self.inputs}
+                "stage1": self.static is not None, "inputs": self.inputs,
+                "load_cell_zero": {**self.zero.as_dict(), "removed": self.zero_removed} if self.zero else None}
 
 
 def check_mode(mode: str) -> str:
@@ -137,7 +144,36 @@ def segment_and_fit(ds, records, tmax: float):
 def plan_dataset(data_dir: str | Path, tmax: float, mode: str = AUTO) -> DataPlan:
     """Load, validate and classify a data set and cut every record into windows. Raises on bad input."""
     check_mode(mode)
-    ds = load_dataset(data_dir, tmax=None)
+    return _plan_of(load_dataset(data_dir, tmax=None), tmax, mode)
+
+
+def zeroed(plan: DataPlan, tmax: float) -> DataPlan:
+    """The plan with the force channel's zero removed where its plateaus measure one.
+
+    An unzeroed load cell adds a constant to every force. Searched for as the ``load_cell_offset`` effect it has to
+    lower the pooled error by a fifth like any rig effect, and a modest offset does not, while it hides the effects
+    behind it (a compliant mount, a check valve). The plateaus measure it directly, friction or not
+    (:func:`~bayesdamper.inference.stage1.plateau_zero`): where the offset lies more than
+    :data:`~bayesdamper.inference.stage1.OFFSET_MIN_T` standard errors from 0 it is subtracted from every record's
+    force and the data set planned again (the plateaus, stage 1 and the windows from the corrected forces); the
+    ``load_cell_offset`` effect stays a candidate for what is left. Otherwise the plan is returned with the zero
+    recorded and nothing removed."""
+    import dataclasses
+
+    from bayesdamper.core.frozen import frozen_copy
+    from bayesdamper.inference.stage1 import plateau_zero
+
+    if not plan.segs:
+        return plan
+    zero = plateau_zero([p for s in plan.segs for p in s.plateaus], plan.ds.damper.piston_area)
+    if zero is None or not zero.measured:
+        return dataclasses.replace(plan, zero=zero)
+    records = tuple(dataclasses.replace(r, force=frozen_copy(r.force - zero.offset_N)) for r in plan.ds.records)
+    out = _plan_of(dataclasses.replace(plan.ds, records=records), tmax, plan.mode)
+    return dataclasses.replace(out, zero=zero, zero_removed=True)
+
+
+def _plan_of(ds, tmax: float, mode: str) -> DataPlan:
     kinds = [inspect_record(r) for r in ds.records]  # checked (raises on a bad record) and classified
     triangular = [k.kind == "triangular" for k in kinds]
     if mode == TWO_STAGE and not all(triangular):
