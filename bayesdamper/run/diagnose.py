@@ -286,7 +286,7 @@ def prepare_diagnosis(data_dir, out: str, *, seed: int = 0, effects: list[str] |
     return Prepared(ds, segs, windows, static, out_dir, settings, prov, base, base_resid, base_flows, noise, noises,
                     rows, structure, signature, names, problems, warm, screen, screen_warm, static_for, workers,
                     seed, credible_mass, progress, t0, compare=compare,
-                    zero={**plan.zero.as_dict(), "removed": plan.zero_removed} if plan.zero is not None else None)
+                    zero=plan.zero_record)
 
 
 def _loop_values(rounds: list, effect: str) -> dict | None:

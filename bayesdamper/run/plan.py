@@ -72,6 +72,11 @@ class DataPlan:
     zero_removed: bool = False
 
     @property
+    def zero_record(self) -> dict | None:
+        """The zero as results store it: :meth:`ZeroFit.as_dict` and whether it was removed (None: not measured)."""
+        return {**self.zero.as_dict(), "removed": self.zero_removed} if self.zero is not None else None
+
+    @property
     def transients(self) -> list:
         """Every window (the name the stage-2 code uses for its units of work)."""
         return self.windows
@@ -95,7 +100,7 @@ class DataPlan:
                              "details": k.details} for k in self.kinds],
                 "windows": [w.as_dict() for w in self.windows],
                 "stage1": self.static is not None, "inputs": self.inputs,
-                "load_cell_zero": {**self.zero.as_dict(), "removed": self.zero_removed} if self.zero else None}
+                "load_cell_zero": self.zero_record}
 
 
 def check_mode(mode: str) -> str:
