@@ -222,31 +222,35 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
     that screen, even when the two-state model alone fits worse than the current model (a masked effect: a compliant
     mount on a two-state damper) and even where the round's own ranking differs; the round's best singles on eq. (7)
     are paired too (a valve's narrow basin between the screen's grid points), the others are not."""
-    import bayesdamper.diagnosis.loop as loop
+    import bayesdamper.diagnosis.two_state_pairs as tsp
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "friction", "backlash", "inertia", "leakage")}
     calls = []
 
     def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
-        calls.append(("screen" if grid_only else "pair", tuple(c.label for c in cands), tuple(fixed)))
+        refilling = fixed.get("two_state", {}).get(tsp.REFILL) == tsp.REFILL_START
+        calls.append(("screen" if grid_only else "pair", tuple(c.label for c in cands), tuple(fixed), refilling))
         # on the two-state model the screen ranks the candidates in the reverse of the round's own order
         score = {"friction": -5.0, "backlash": -10.0, "inertia": -20.0, "leakage": -30.0}.get(cands[-1].label, 0.0)
         return SimpleNamespace(labels=tuple(c.label for c in cands), delta_bic=score,
                                effects={c.effect: {} for c in cands}, effect="+".join(c.label for c in cands))
 
-    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
     singles = [SimpleNamespace(labels=(n,), delta_bic=s, effects={n: {}}, effect=n)
                for n, s in (("friction", -40.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
     for ts_score in (+203.0, -500.0):
         calls.clear()
         ts = SimpleNamespace(labels=("two_state",), delta_bic=ts_score, effects={"two_state": {}}, effect="two_state",
                              at_bound=[])
-        out, screen = loop.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
+        out, screen = tsp.two_state_pairs(None, [ts, *singles], specs, list(specs), np.zeros(3), np.ones(3), None,
                                            Progress(False))
         screens = [c for c in calls if c[0] == "screen"]
-        assert sorted(c[1] for c in screens) == [("backlash",), ("friction",), ("inertia",), ("leakage",)]
+        # each library effect on the model as fitted alone and on it refilling
+        for refilling in (False, True):
+            assert sorted(c[1] for c in screens if c[3] == refilling) == [("backlash",), ("friction",), ("inertia",),
+                                                                          ("leakage",)]
         assert all(c[2] == ("two_state",) for c in screens)
-        assert sorted(screen) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
+        assert sorted(screen.alone) == ["backlash", "friction", "inertia", "leakage"]  # each one's best point
         # the screen's best three, then friction: the round's best single (its third best, inertia, is in already;
         # leakage is fourth there)
         assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"),
@@ -255,7 +259,7 @@ def test_the_two_state_pairs_come_from_the_screen_on_the_two_state_model(monkeyp
     calls.clear()
     worse = [SimpleNamespace(labels=(n,), delta_bic=s, effects={n: {}}, effect=n)
              for n, s in (("friction", +4.0), ("backlash", -30.0), ("inertia", -20.0), ("leakage", -10.0))]
-    out, _ = loop.two_state_pairs(None, [ts, *worse], specs, list(specs), np.zeros(3), np.ones(3), None,
+    out, _ = tsp.two_state_pairs(None, [ts, *worse], specs, list(specs), np.zeros(3), np.ones(3), None,
                                   Progress(False))
     assert [o.labels for o in out] == [("two_state", "leakage"), ("two_state", "inertia"), ("two_state", "backlash")]
 
@@ -265,7 +269,7 @@ def test_the_best_physical_screens_are_paired_whatever_generic_filters_rank_abov
     damper looks like a flow filter); the library effects that improve on the two-state model are paired with it all
     the same, the PAIR_FROM best of them (a generic option is named only over the best physical ones), and a library
     effect the screen finds no better than the two-state model alone is not."""
-    import bayesdamper.diagnosis.loop as loop
+    import bayesdamper.diagnosis.two_state_pairs as tsp
 
     generic = [f"unnamed_dynamics@{p}" for p in ("flow", "force", "flow:q", "force:q")]
     physical = ["series_compliance", "leakage", "friction", "backlash", "inertia"]
@@ -278,11 +282,11 @@ def test_the_best_physical_screens_are_paired_whatever_generic_filters_rank_abov
         return SimpleNamespace(labels=(label,) if grid_only else ("two_state", label), delta_bic=screen[label],
                                effects={c.effect: {} for c in cands}, effect="+".join(c.label for c in cands))
 
-    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=+20.0, effects={"two_state": {}}, effect="two_state")
-    out, _ = loop.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    out, _ = tsp.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
     paired = [o.labels[1] for o in out]
-    assert paired == generic[:loop.PAIR_FROM] + physical[:loop.PAIR_FROM]
+    assert paired == generic[:tsp.PAIR_FROM] + physical[:tsp.PAIR_FROM]
     assert "backlash" not in paired and "inertia" not in paired
 
 
@@ -302,71 +306,142 @@ def test_the_options_refitted_are_the_best_and_the_best_physical_ones():
     assert not holds_generic("series_compliance", specs)
 
 
-def test_a_two_state_pair_is_also_started_from_the_candidates_own_optimum(monkeypatch):
-    """A pair of the two-state model is refined from the screen's point and, for a candidate that improved on eq. (7)
-    alone, also from that fit's optimum, each start for GLOBAL_LM_ITER iterations and the best continued; the better
-    refinement is the option (a valve's screen point in a chattering
-    basin, its own optimum in the ringing one). A candidate that did not improve alone starts from the screen only.
-    The two-state side starts as fitted alone with the screen's point, at its defaults with the candidate's optimum,
-    and as fitted alone but with the accumulator refilling (REFILL_START) with the screen's point (the leak's pair is
-    best from there), with the candidate's own optimum where it improved alone, and with the candidate searched
-    afresh, without a start (the valve's pair is best from there: the refilling model's best valve lies in another
-    basin than the screen's)."""
-    import bayesdamper.diagnosis.loop as loop
+def test_a_two_state_pair_is_started_from_its_screens_and_the_candidates_own_optimum(monkeypatch):
+    """A pair of the two-state model is refined from several starts, each for GLOBAL_LM_ITER iterations, the best
+    continued; the better refinement is the option. The two-state side as fitted alone with the screen's point on it;
+    at its defaults with the candidate's own optimum on eq. (7), where the candidate improved alone (a valve's screen
+    point in a chattering basin, its own optimum in the ringing one); and with the accumulator refilling
+    (REFILL_START): with a library effect's point on the refilling screen (the valve's pair is best from there: the
+    refilling model's best valve lies in another basin than the screen's on the model as fitted alone; the leak's pair
+    too) and with the candidate's own optimum where it improved alone. A generic candidate, screened on the model as
+    fitted alone only, starts on the refilling model from that screen's point and searched afresh, without a start."""
+    import bayesdamper.diagnosis.two_state_pairs as tsp
 
-    specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
-    pairs, starts_ts = [], []
-
-    continued = []
+    generic = "unnamed_dynamics@flow"
+    specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage", generic)}
+    pairs, starts_ts, screens, continued = [], [], [], []
 
     def fake_fit(engine, cands, start, fixed, *a, grid_only=False, max_iter=None, **k):
-        label = cands[-1].label
-        if grid_only:  # the screen on the two-state model: the valve's grid point lies at 6 Hz
-            return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 6.0}}, effect=label)
-        assert k.get("dtol") == loop.LM_DTOL_SEARCH  # an option is refined to the search's stop, not the reported one
-        if max_iter == loop.LM_ITER - loop.GLOBAL_LM_ITER:  # the best start continued: 10 better
-            continued.append((label, start))
+        spec = cands[-1]
+        label, eff = spec.label, spec.effect
+        if grid_only:  # the screens: every point at 6 Hz on the model as fitted alone, at 2.5 Hz on it refilling
+            on_refill = fixed["two_state"].get(tsp.REFILL) == tsp.REFILL_START
+            screens.append((label, on_refill))
+            return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={eff: {"f": 2.5 if on_refill else 6.0}},
+                                   effect=label)
+        assert k.get("dtol") == tsp.LM_DTOL_SEARCH  # an option is refined to the search's stop, not the reported one
+        if max_iter == tsp.LM_ITER - tsp.GLOBAL_LM_ITER:  # the best start continued: 10 better
+            continued.append((label, start[label]["f"], start["two_state"]["score"]))
             return SimpleNamespace(labels=("two_state", label), delta_bic=start["two_state"]["score"] - 10.0,
-                                   effects={"two_state": {}, label: {}}, effect=f"two_state+{label}")
-        assert max_iter == loop.GLOBAL_LM_ITER
+                                   effects={"two_state": {}, eff: {}}, effect=f"two_state+{label}")
+        assert max_iter == tsp.GLOBAL_LM_ITER
         f = start[label]["f"] if label in start else None  # None: searched afresh
         pairs.append((label, f))
         starts_ts.append(start["two_state"])
-        refilling = start["two_state"].get(loop.REFILL) == loop.REFILL_START
-        score = {6.0: -100.0, 1.8: -1100.0, 0.3: -60.0, None: -50.0}[f] - (200.0 if refilling and label == "leakage"
-                                                                         else 0.0)
-        if f is None and label == "poppet_valve":
-            score = -2500.0
+        refilling = start["two_state"].get(tsp.REFILL) == tsp.REFILL_START
+        score = {6.0: -100.0, 1.8: -1100.0, 2.5: -50.0, None: -50.0}[f]
+        score -= 200.0 if refilling and label == "leakage" else 0.0
+        score = -2500.0 if f == 2.5 and label == "poppet_valve" else score
         return SimpleNamespace(labels=("two_state", label), delta_bic=score,
-                               effects={"two_state": {"score": score}, label: {"f": f}}, effect=f"two_state+{label}")
+                               effects={"two_state": {"score": score}, eff: {"f": f}}, effect=f"two_state+{label}")
 
-    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=+40.0, effects={"two_state": {"G": 1e-15}},
                          effect="two_state", at_bound=[{"param": "G"}])
     valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-600.0, effects={"poppet_valve": {"f": 1.8}},
                             effect="poppet_valve")
     leak = SimpleNamespace(labels=("leakage",), delta_bic=+5.0, effects={"leakage": {"f": 0.3}}, effect="leakage")
-    out, _ = loop.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
-                                  Progress(False))
-    key = lambda r: (r[0], -1.0 if r[1] is None else r[1])  # noqa: E731
-    assert sorted(pairs, key=key) == [("leakage", None), ("leakage", 6.0), ("leakage", 6.0), ("poppet_valve", None),
-                                      ("poppet_valve", 1.8), ("poppet_valve", 1.8), ("poppet_valve", 6.0),
-                                      ("poppet_valve", 6.0)]
+    out, screen = tsp.two_state_pairs(None, [ts, valve, leak], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                      Progress(False))
+    assert sorted(screens) == sorted([("poppet_valve", False), ("poppet_valve", True), ("leakage", False),
+                                      ("leakage", True), (generic, False)])
+    assert screen.alone == {"poppet_valve": {"f": 6.0}, "leakage": {"f": 6.0}, generic: {"f": 6.0}}  # as fitted alone
+    own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
+    refilling = {**own, tsp.REFILL: tsp.REFILL_START}
+    key = lambda r: (r[0][0], -1.0 if r[0][1] is None else r[0][1], sorted(r[1]))  # noqa: E731
+    assert sorted(zip(pairs, starts_ts, strict=True), key=key) == sorted([
+        (("leakage", 6.0), own), (("leakage", 2.5), refilling),  # did not improve alone: no own optimum
+        (("poppet_valve", 6.0), own), (("poppet_valve", 1.8), defaults), (("poppet_valve", 2.5), refilling),
+        (("poppet_valve", 1.8), refilling),
+        ((generic, 6.0), own), ((generic, 6.0), refilling), ((generic, None), refilling)], key=key)
     # each start refined for GLOBAL_LM_ITER iterations, the best continued to the budget, and the continuation is the
     # option where it is better
-    assert sorted((lab, st[lab]["f"], st["two_state"]["score"]) for lab, st in continued) == [
-        ("leakage", 6.0, -300.0), ("poppet_valve", None, -2500.0)]
+    assert sorted(continued) == [("leakage", 2.5, -250.0), ("poppet_valve", 2.5, -2500.0), (generic, 6.0, -100.0)]
     best = {o.effect: o for o in out}
-    assert best["two_state+poppet_valve"].delta_bic == -2510.0  # searched afresh on the refilling model
-    assert best["two_state+leakage"].delta_bic == -310.0  # from the refilling start at the screen's point
-    # the screen's point with the two-state model as fitted alone, the candidate's own optimum with its defaults,
-    # the screen's point and the candidate's own optimum with the two-state model as fitted alone but refilling
-    own, defaults = {"G": 1e-15}, EFFECTS["two_state"].defaults()
-    refilling = {**own, loop.REFILL: loop.REFILL_START}
-    got = sorted(zip(pairs, starts_ts, strict=True), key=lambda r: (key(r[0]), sorted(r[1])))
-    assert got == [(("leakage", None), refilling), (("leakage", 6.0), own), (("leakage", 6.0), refilling),
-                   (("poppet_valve", None), refilling), (("poppet_valve", 1.8), refilling),
-                   (("poppet_valve", 1.8), defaults), (("poppet_valve", 6.0), own), (("poppet_valve", 6.0), refilling)]
+    assert best["two_state+poppet_valve"].delta_bic == -2510.0  # from the refilling screen's point
+    assert best["two_state+leakage"].delta_bic == -260.0
+    assert best[f"two_state+{generic}"].delta_bic == -110.0
+
+
+def test_a_library_effect_masked_on_the_two_state_model_fitted_alone_ranks_by_its_refilling_screen(monkeypatch):
+    """A stiff mount on a two-state damper: on the two-state model as fitted alone (its accumulator not refilling)
+    the mount is no better than nothing, behind generic filters and other library effects; on the same model
+    refilling it is the best candidate. A candidate ranks by the better of its two screens, so the mount is paired
+    with the two-state model (and first); without its refilling screen it would not be."""
+    import bayesdamper.diagnosis.two_state_pairs as tsp
+
+    generic = [f"unnamed_dynamics@{p}" for p in ("flow", "force", "flow:q")]
+    physical = ["friction", "backlash", "inertia", "series_compliance"]
+    specs = {n: CandidateSpec(n) for n in ["two_state", *generic, *physical]}
+    alone = {**dict(zip(generic, (-900.0, -800.0, -700.0), strict=True)),
+             **dict(zip(physical, (-300.0, -200.0, -100.0, +5.0), strict=True))}
+    on_refill = {n: +50.0 for n in physical} | {"series_compliance": -2000.0}
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, **k):
+        label = cands[-1].label
+        if grid_only:
+            refilling = fixed["two_state"].get(tsp.REFILL) == tsp.REFILL_START
+            score = on_refill[label] if refilling else alone[label]
+            return SimpleNamespace(labels=(label,), delta_bic=score, effects={cands[-1].effect: {}}, effect=label)
+
+        return SimpleNamespace(labels=("two_state", label), delta_bic=-1.0,
+                               effects={"two_state": {}, cands[-1].effect: {}}, effect=f"two_state+{label}")
+
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
+    ts = SimpleNamespace(labels=("two_state",), delta_bic=+20.0, effects={"two_state": {}}, effect="two_state")
+    out, _ = tsp.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    assert [o.labels[1] for o in out][0] == "series_compliance"
+    assert {o.labels[1] for o in out} == {"series_compliance", *generic[:2], "friction", "backlash"}
+    on_refill["series_compliance"] = +60.0  # masked on both: not paired
+    out, _ = tsp.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    assert "series_compliance" not in {o.labels[1] for o in out}
+
+
+def test_before_a_generic_option_every_library_effect_the_screens_found_better_is_paired(monkeypatch):
+    """Before a generic option is named in the first round, the library effects not yet paired whose screen improved
+    on the two-state model alone are fitted jointly with it, best screen first (a one-element valve screened into a
+    wrong basin ranks below the pairs fitted); a generic candidate, one already paired or one whose screen is no
+    better than the two-state model alone is not."""
+    import bayesdamper.diagnosis.two_state_pairs as tsp
+
+    generic = "unnamed_dynamics@flow"
+    names = ("two_state", "series_compliance", "poppet_valve", "valve_dynamics", "friction", generic)
+    specs = {n: CandidateSpec(n) for n in names}
+    screen = {"series_compliance": -900.0, generic: -800.0, "valve_dynamics": -450.0, "poppet_valve": -500.0,
+              "friction": -300.0}
+    fitted = []
+
+    def fake_fit(engine, cands, start, fixed, *a, grid_only=False, max_iter=None, **k):
+        label, eff = cands[-1].label, cands[-1].effect
+        if grid_only:
+            return SimpleNamespace(labels=(label,), delta_bic=screen[label], effects={eff: {}}, effect=label)
+        fitted.append(label)
+        return SimpleNamespace(labels=("two_state", label), delta_bic=-1.0, effects={"two_state": {}, eff: {}},
+                               effect=f"two_state+{label}")
+
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
+    monkeypatch.setattr(tsp, "PAIR_FROM", 1)
+    ts = SimpleNamespace(labels=("two_state",), delta_bic=-400.0, effects={"two_state": {}}, effect="two_state")
+    out, screens = tsp.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None,
+                                       Progress(False))
+    assert screens.paired == {"series_compliance"}  # the best screen and the best library effect: the same
+    fitted.clear()
+    more = tsp.physical_pairs_left(None, screens, [ts], specs, np.zeros(3), np.ones(3), None, Progress(False))
+    assert [m.labels[1] for m in more] == ["poppet_valve", "valve_dynamics"]
+    assert set(fitted) == {"poppet_valve", "valve_dynamics"}  # friction's screen is no better than the model alone
+    assert screens.paired == {"series_compliance", "poppet_valve", "valve_dynamics"}
+    assert tsp.physical_pairs_left(None, screens, [ts], specs, np.zeros(3), np.ones(3), None, Progress(False)) == []
+    assert tsp.physical_pairs_left(None, None, [ts], specs, np.zeros(3), np.ones(3), None, Progress(False)) == []
 
 
 def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_the_pair_starts(monkeypatch):
@@ -374,7 +449,7 @@ def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_th
     from the members' own optima (the two-state model at no refill, its flat part); the two-state pairs fit it from
     their starts as well, and the best of all stands for the pair in the round's list (replaced, not duplicated).
     A pair whose earlier fit is better than every start keeps that fit."""
-    import bayesdamper.diagnosis.loop as loop
+    import bayesdamper.diagnosis.two_state_pairs as tsp
 
     specs = {n: CandidateSpec(n) for n in ("two_state", "poppet_valve", "leakage")}
 
@@ -382,12 +457,12 @@ def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_th
         label = cands[-1].label
         if grid_only:
             return SimpleNamespace(labels=(label,), delta_bic=-50.0, effects={label: {"f": 2.0}}, effect=label)
-        refilling = start["two_state"].get(loop.REFILL) == loop.REFILL_START
+        refilling = start["two_state"].get(tsp.REFILL) == tsp.REFILL_START
         score = {"poppet_valve": -2500.0 if refilling else -900.0, "leakage": -100.0}[label]
         return SimpleNamespace(labels=("two_state", label), delta_bic=score, effects={"two_state": {}, label: {}},
                                effect=f"two_state+{label}")
 
-    monkeypatch.setattr(loop, "fit_joint", fake_fit)
+    monkeypatch.setattr(tsp, "fit_joint", fake_fit)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=-30.0, effects={"two_state": {"G": 1e-15}},
                          effect="two_state")
     valve = SimpleNamespace(labels=("poppet_valve",), delta_bic=-1000.0, effects={"poppet_valve": {"f": 2.0}},
@@ -398,7 +473,7 @@ def test_a_two_state_pair_already_fitted_from_its_members_is_also_fitted_from_th
     earlier_leak = SimpleNamespace(labels=("two_state", "leakage"), delta_bic=-400.0, effects={},
                                    effect="two_state+leakage")
     fits = [ts, valve, leak, earlier_valve, earlier_leak]
-    out, _ = loop.two_state_pairs(None, fits, specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
+    out, _ = tsp.two_state_pairs(None, fits, specs, list(specs), np.zeros(3), np.ones(3), None, Progress(False))
     assert out == []  # both pairs were in the list already: nothing added
     pairs = [f for f in fits if len(f.labels) == 2]
     assert len(pairs) == 2
@@ -467,3 +542,20 @@ def test_a_round_that_selects_nothing_says_why_for_each_option():
     assert "J -13%" in best
     assert none_selected_lines(candidates[:1] + [{**candidates[3], "supported": False}])[0].startswith(
         "Selected: none - no candidate passes")
+
+
+def test_the_reports_line_on_a_generic_option_names_the_pairs_fitted_for_it_first():
+    """The report says which two-state pairs were fitted before the generic option was set against the physical
+    ones, each rival's paired gain, and the verdict; a record without pairs fitted first says nothing of them."""
+    from bayesdamper.diagnosis.summary import last_resort_lines
+
+    rec = {"generic": "two_state+unnamed_dynamics@flow", "kept": False, "indistinguishable_from": ["two_state+x"],
+           "pairs_fitted_first": ["two_state+poppet_valve"],
+           "rivals": [{"effect": "two_state+poppet_valve", "gain_over": -12.5, "se": 3.0, "n_folds": 6,
+                       "beats": False}]}
+    (line,) = last_resort_lines([{"last_resort": rec}, {"last_resort": None}])
+    assert "fitted for it first: two_state+poppet_valve" in line
+    assert "two_state+poppet_valve (-12.5, se 3.0, 6 folds: not beaten)" in line
+    assert line.endswith("not named; indistinguishable from two_state+x.")
+    (line,) = last_resort_lines([{"last_resort": {**rec, "pairs_fitted_first": [], "kept": True}}])
+    assert "fitted for it first" not in line and ": named;" in line

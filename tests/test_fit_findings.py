@@ -321,6 +321,35 @@ def test_a_screen_scores_the_global_stages_starts_like_its_grid_points():
     assert wide.cost["global"]["starts"] == 3 and "refine" not in wide.cost and "refine" not in plain.cost
 
 
+class _MountEngine(FakeProfileEngine):
+    """One window whose SSE in a mount's stiffness k has a well at 2e7 N/m (SSE 1) a third of a decade wide, between
+    the screen's grid points (1e6, 6.3e6, 4e7, 2.5e8, 1.6e9, 1e10 N/m: SSE 22 at 4e7, 35 at 6.3e6, 40 further), as a
+    stiff mount's on the two-state model."""
+
+    problems = [fake_problem(np.ones(50))]
+
+    def evaluate(self, eff, flow=None, keep=False, idx=None, start=None, rough=False):
+        k = eff["series_compliance"]["stiffness_N_per_m"]
+        sse = 40.0 - 39.0 * math.exp(-(math.log(k / 2e7) / 0.8) ** 2)
+        return np.array([sse]), np.zeros((1, 2)), [np.full(50, math.sqrt(sse / 50.0))]
+
+
+def test_a_screen_of_one_parameter_looks_between_its_grid_points():
+    """With ``screen_global`` a one-parameter screen runs Brent's method within its best grid point's bracket and
+    finds the well between the points (within the 1 % of the range it is asked for); a plain screen keeps the grid's
+    point, and neither refines with every window."""
+    args = ({}, {}, np.array([50.0]), np.array([50.0]), lambda e: None, lambda e: e)
+    plain = fit_joint(_MountEngine(), [CandidateSpec("series_compliance")], *args, grid_only=True)
+    wide = fit_joint(_MountEngine(), [CandidateSpec("series_compliance")], *args, grid_only=True, screen_global=True)
+    grid_k = math.exp(np.linspace(math.log(1e6), math.log(1e10), cand.GRID_POINTS)[2])
+    assert plain.effects["series_compliance"]["stiffness_N_per_m"] == pytest.approx(grid_k)
+    assert "global" not in plain.cost and "refine" not in plain.cost
+    k = wide.effects["series_compliance"]["stiffness_N_per_m"]
+    assert abs(math.log(k / 2e7)) < 0.01 * math.log(1e4) * 2  # Brent's xatol, 1 % of the log range, twice
+    assert wide.j_pooled < 0.2 < plain.j_pooled
+    assert wide.cost["global"]["starts"] == 1 and "refine" not in wide.cost
+
+
 def _servo_fit(poles=()):
     return fit_joint(_WellEngine(), [CandidateSpec("command_displacement", poles=poles)], {}, {}, np.array([50.0]),
                      np.array([50.0]), lambda e: None, lambda e: e)

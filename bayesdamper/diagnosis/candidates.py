@@ -184,8 +184,11 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         are reported, the loop's looser :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH` for options it only
         ranks.
     screen_global : bool
-        With ``grid_only``: the global stage's starts are scored like the grid's points and the best of both is the
-        screen's point (a valve's narrow basin between the grid's points is not screened out).
+        With ``grid_only``: a screen that looks between the grid's points. The global stage's starts are scored like
+        the grid's points and the best of both is the screen's point (a valve's narrow basin between the grid's points
+        is not screened out); a candidate of one parameter has Brent's method run on the grid's objective within the
+        best grid point's bracket instead (a stiff mount's basin on the two-state model is narrower than the grid's
+        step).
     points_only : bool
         The grid is the specs' whole points alone (``CandidateSpec.points``), where they give any: a screen on a
         model that an earlier screen of the same candidates held (:func:`bayesdamper.diagnosis.loop.select_effects`).
@@ -319,7 +322,13 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         i = int(np.argmin(vals))
         a, b = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
         stage("grid")
-        if grid_only:
+        if grid_only and screen_global and b > a:  # a screen that looks between the grid's points: Brent's
+            # method on the grid's objective within the best point's bracket (a basin narrower than the grid's step)
+            res = minimize_scalar(lambda z: grid_objective([z]), bounds=(a, b), method="bounded",
+                                  options={"xatol": 0.01 * (hi[0] - lo[0])})
+            z_hat = np.array([res.x if res.fun < vals[i] else grid[i]])
+            stage("global", starts=1)
+        elif grid_only:
             z_hat = np.array([grid[i]])
         else:
             res = minimize_scalar(lambda z: objective([z]), bounds=(a, b), method="bounded",

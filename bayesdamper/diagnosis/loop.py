@@ -11,10 +11,14 @@ in every held-out fold and, with exactly ``LOVO_MIN_FOLDS_FOR_SE`` folds exceed 
 the shared parameters re-fitted without it extrapolate to its speeds out of all proportion) set aside and reported;
 among the options that pass, the largest gain wins. Options are single candidates, pairs of the best ones and, in the
 first round, pairs of the two-state model with the candidates that best explain what it leaves
-(:func:`two_state_pairs`); every option re-fits the effects already selected jointly with the new ones (in a later
-round the candidates are first screened with them held, :func:`screen_spec`, and the best re-fitted jointly); a pair
-must also meet the criterion over its better member alone (:func:`check_pairs`). Only the first round's singles that
-can still decide get the simplex that finishes a refinement that did not converge (:func:`polish_contenders`).
+(:func:`~bayesdamper.diagnosis.two_state_pairs.two_state_pairs`); every option re-fits the effects already selected
+jointly with the new ones (in a later round the candidates are first screened with them held, :func:`screen_spec`,
+and the best re-fitted jointly); a pair must also meet the criterion over its better member alone
+(:func:`check_pairs`). Only the first round's singles that can still decide get the simplex that finishes a
+refinement that did not converge (:func:`polish_contenders`). A generic option that would be selected in the
+first round is first set against the two-state model's pairs with every library effect whose screen improved on the
+two-state model alone (:func:`~bayesdamper.diagnosis.two_state_pairs.physical_pairs_left`), then against the best
+physical options out of sample (:func:`unnamed_last_resort`).
 Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected has its narrow-basin effects searched
 afresh and its effects' variants in their place (:mod:`bayesdamper.diagnosis.basins`), and is refined to the reported
@@ -45,18 +49,22 @@ from bayesdamper.diagnosis.attribution import (
 )
 from bayesdamper.diagnosis.basins import research_basins, search_variants
 from bayesdamper.diagnosis.candidates import (
-    GLOBAL_LM_ITER,
-    LM_ITER,
     CandidateSpec,
     effective_sizes,
     fit_joint,
     pooled_j,
     search_params,
 )
-from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
 from bayesdamper.diagnosis.global_stage import search_step
 from bayesdamper.diagnosis.spec import best_and_physical, holds_generic
-from bayesdamper.physics.effects import EFFECTS
+from bayesdamper.diagnosis.two_state_pairs import (
+    NO_INTERVALS,
+    PAIR_FROM,
+    TWO_STATE,
+    physical_pairs_left,
+    search_option,
+    two_state_pairs,
+)
 from bayesdamper.physics.with_effects import effect_argument
 
 #: ΔBIC at or below which a candidate effect is selected (Kass & Raftery: |ΔBIC| > 10 very strong).
@@ -66,36 +74,18 @@ SELECT_DELTA_BIC = -10.0
 #: two-state data the mis-specification looks partly like friction).
 MIN_J_REDUCTION = 0.2
 MAX_ROUNDS = 3  # rounds of the select-and-refit loop
-#: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the option selected gets
-#: its intervals at its optimum (two re-fits of every window per parameter, spared for every option that is not).
-NO_INTERVALS = -math.inf
-#: Candidates carried from the single fits of a round into pairs (the best by ΔBIC_eff with ΔBIC_eff < 0).
-PAIR_FROM = 3
 #: Physical options (by ΔBIC_eff) a generic option must beat out of sample to be named (:func:`unnamed_last_resort`).
 PHYSICAL_RIVALS = 2
-#: The two-state physics the loop checks first.
-TWO_STATE = "two_state"
-#: Refill conductance [m^3/(s Pa)] of the two-state pairs' refilling start (:func:`two_state_pairs`): a decade below
-#: the top of the two-state model's own range, inside the basin where the accumulator refills.
-REFILL = "refill_conductance_m3_per_s_Pa"
-REFILL_START = EFFECTS[TWO_STATE].param(REFILL).upper / 10
 #: Options of a round (singles or pairs) whose leave-velocities-out gain is computed (best by ΔBIC_eff).
 LOVO_OPTIONS = 3
 
 
-def search_option(engine, specs, start, fixed, current_sse, n_eff, flow_for, **kw):
-    """:func:`~bayesdamper.diagnosis.candidates.fit_joint` of an option of the loop: its optimum only ranks it
-    (no intervals, :data:`NO_INTERVALS`; the search's stop :data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`).
-    The option selected is refined and given its intervals afterwards (:func:`select_effects`)."""
-    return fit_joint(engine, specs, start, fixed, current_sse, n_eff, flow_for, effect_argument,
-                     intervals_to=NO_INTERVALS, dtol=LM_DTOL_SEARCH, **kw)
-
-
 def screen_spec(spec: CandidateSpec, earlier: dict, ts_screen: dict, sel_specs: list) -> tuple[CandidateSpec, bool]:
     """A candidate as a later round screens it: its optimum of the round before among its grid's points; and where the
-    selected effects are the two-state model alone, the model the first round's two-state screen held
-    (:func:`two_state_pairs`), the grid is that screen's best point and that optimum only (``points_only``): the grid
-    was ranked on this model there, up to the selection's final refinement. Returns the spec and ``points_only``."""
+    selected effects are the two-state model alone, the model the first round's two-state screen held as fitted
+    alone (:func:`~bayesdamper.diagnosis.two_state_pairs.two_state_pairs`), the grid is that screen's best point and
+    that optimum only (``points_only``): the grid was ranked on this model there, up to the selection's final
+    refinement. Returns the spec and ``points_only``."""
     label = spec.label
     again = [ts_screen[label]] if label in ts_screen and [sp.effect for sp in sel_specs] == [TWO_STATE] else []
     points = again + ([earlier[label]] if label in earlier else [])
@@ -189,6 +179,7 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
     folds = velocity_folds(list(velocities)) if velocities is not None and len(set(velocities)) > 1 else None
     earlier: dict = {}  # each candidate's optimum in the round before: a point of its next screen's grid
     ts_screen: dict = {}  # the first round's screen on the two-state model: each candidate's best point
+    screens = None  # the first round's screens on the two-state model (two_state_pairs)
     for rnd in range(MAX_ROUNDS):
         if not remaining:
             break
@@ -232,8 +223,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                                           current["sse"], n_eff, flow_for, new=(a.effect, b.effect)))
         if not sel_specs:
             search_step("two-state pairs")
-            pairs, ts_screen = two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for,
-                                               progress)
+            pairs, screens = two_state_pairs(engine, fits, specs, remaining, current["sse"], n_eff, flow_for,
+                                             progress)
+            ts_screen = screens.alone if screens is not None else {}
             fits += pairs
         fits.sort(key=lambda c: c.delta_bic)
         earlier = {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in fits
@@ -267,10 +259,18 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
         last_resort = None
         if best is not None and holds_generic(best["effect"], specs):
+            more = []
+            if not sel_specs and screens is not None:  # the first round: the two-state model's pairs left first
+                search_step("the two-state model's pairs left, before a generic option")
+                more = physical_pairs_left(engine, screens, fits, specs, current["sse"], n_eff, flow_for, progress)
+                fits += more
+                rows += [{**_option_row(c, j_cur), "passes": False} for c in more]
+                check_pairs(rows)
             progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
             search_step("generic option against the physical ones")
             best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
                                                     current["sse"], n_eff, flow_for, lovo_cache)
+            last_resort["pairs_fitted_first"] = [c.effect for c in more]
         rival = runner_up(rows, best)  # after the last resort: the option it selects, and every option it scored
         if best is not None and rival is not None and "_lovo" in best:
             best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}
@@ -327,83 +327,6 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
             rounds[-1]["backward_check"] = dropped
     search_step(None)
     return selected, fixed, rounds
-
-
-def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_sse, n_eff, flow_for,
-                    progress) -> tuple[list, dict]:
-    """Pairs of the two-state model with the candidates that best explain what it leaves.
-
-    A rig effect seen through eq. (6)'s assumed pressures can be masked by them (a compliant mount on a two-state
-    damper ranks behind generic filters on eq. (7)); the two-state model alone may not fit either while the effect is
-    missing. So every other candidate is screened on the two-state model as fitted alone (held at its values; the
-    candidate's grid and its global stage's starts), the :data:`PAIR_FROM` best by ΔBIC_eff are fitted jointly with
-    it, and so are the :data:`PAIR_FROM` best library effects among those that improve on it (a generic option is
-    named only over the best physical ones) and the round's :data:`PAIR_FROM` best singles on eq. (7) (a valve's
-    narrow basin can lie between the grid's points), every parameter free: from the screen's point with the
-    two-state model as fitted alone; for a candidate that improved on eq. (7) alone, also from its own optimum there
-    with the two-state model at the registry's defaults; and with the two-state model refilling
-    (:data:`REFILL_START`), from the screen's point, from that optimum and with the candidate searched afresh on the
-    refilling model (grid, global stage). Each start is refined for
-    :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
-    budget. The best fit is the option: a valve's profile has several basins, the screen's coarse grid may start it
-    in the wrong one, and a two-state model fitted alone ends at no refill, where the refill's profile is flat.
-    Returns those joint fits (options like any pair) and the screen: each candidate's best point on the two-state
-    model (``{label: values}``; a later round that holds the two-state model alone screens there). A pair the round
-    has already fitted from its members' own optima is fitted from these starts too, and the best of all its fits
-    replaces it in ``fits``: the members' optima can lie in the refill's flat part, which the refilling start leaves.
-
-    The screen runs whatever the two-state model alone scored: with a compliant mount on a two-state damper it can
-    fit worse alone than eq. (7) does (eq. (7)'s per-window α_V, p_R absorb the mount, its pressure state does not)
-    while its pair with the mount is the answer."""
-    ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
-    if ts is None:
-        return [], {}
-    held = {TWO_STATE: dict(ts.effects[TWO_STATE])}
-    screened = []
-    for label in remaining:
-        if specs[label].effect == TWO_STATE:
-            continue
-        progress(f"diagnose: round 1, screening {label} on the two-state model")
-        screened.append(fit_joint(engine, [specs[label]], {}, held, current_sse, n_eff, flow_for, effect_argument,
-                                  grid_only=True, screen_global=True))
-        progress.advance()
-    have = {frozenset(c.labels): c for c in fits if len(c.labels) == 2}
-    out = []
-    ranked = sorted(screened, key=lambda c: c.delta_bic)
-    lead = [f.labels[0] for f in sorted(fits, key=lambda f: f.delta_bic)  # the round's best singles on eq. (7)
-            if len(f.labels) == 1 and f.delta_bic < 0 and specs[f.labels[0]].effect != TWO_STATE][:PAIR_FROM]
-    # and the best library effects among the screens that improve on the two-state model (best_and_physical)
-    lead += [c.labels[0] for c in best_and_physical([c for c in ranked if c.delta_bic < 0], specs, PAIR_FROM)]
-    for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
-        pair = (ts.labels[0], c.labels[0])
-        progress(f"diagnose: round 1, fitting the pair {pair[0]} + {pair[1]}")
-        eff = specs[pair[1]].effect
-        starts = [(held[TWO_STATE], c.effects[eff])]
-        alone = next((f for f in fits if f.labels == (pair[1],) and f.delta_bic < 0), None)
-        if alone is not None:  # its own optimum on eq. (7) too: the screen's grid point may lie in another basin
-            starts.append((EFFECTS[TWO_STATE].defaults(), alone.effects[eff]))
-        # and with the accumulator refilling (the pair's profile in the refill conductance can be bimodal, flat where
-        # refill is off, a basin where it refills, as on rig-A): from the screen's point, searched afresh (grid, global
-        # stage; its best valve can lie in another basin than the one screened without refill), its own optimum
-        refilling = {**held[TWO_STATE], REFILL: REFILL_START}
-        starts += [(refilling, c.effects[eff]), (refilling, None)]
-        starts += [(refilling, alone.effects[eff])] if alone is not None else []
-        # each start refined for GLOBAL_LM_ITER iterations, the best to the search's budget (as global starts are)
-        tried = [search_option(engine, [specs[pair[0]], specs[pair[1]]],
-                               {pair[0]: v_ts, **({pair[1]: v} if v is not None else {})},
-                               {}, current_sse, n_eff, flow_for, new=pair, max_iter=GLOBAL_LM_ITER)
-                 for v_ts, v in starts]
-        lead = min(tried, key=lambda f: f.delta_bic)
-        tried.append(search_option(engine, [specs[pair[0]], specs[pair[1]]],
-                                   {pair[0]: lead.effects[TWO_STATE], pair[1]: lead.effects[eff]}, {}, current_sse,
-                                   n_eff, flow_for, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER))
-        earlier = have.get(frozenset(pair))
-        best = min(tried + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
-        if earlier is None:
-            out.append(best)
-        else:  # the pair of the round's best singles, fitted from their own optima: the better fit stands for it
-            fits[fits.index(earlier)] = best
-    return out, {c.labels[0]: dict(c.effects[specs[c.labels[0]].effect]) for c in screened}
 
 
 def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, engine, folds, sel_specs: list,

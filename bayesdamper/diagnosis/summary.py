@@ -336,17 +336,7 @@ def report_text(d: dict) -> str:
                 a = c["against_runner_up"]
                 lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
                              f"(se {a['se']:.1f})")
-    for r in d.get("rounds", []):
-        lr = r.get("last_resort")
-        if lr:
-            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f}, {x['n_folds']} folds"
-                               + ("" if x["beats"] else ": not beaten") + ")" if "gain_over" in x else x["effect"]
-                               for x in lr["rivals"]) or "none fitted"
-            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gains over "
-                         f"each, named only when they pass the held-out rule): {rivals}: "
-                         + ("named" if lr["kept"] else "not named")
-                         + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
-                            if lr["indistinguishable_from"] else "."))
+    lines += last_resort_lines(d.get("rounds", []))
     for k, r in enumerate(d.get("rounds", [])):
         for c in (c for c in r["candidates"] if c["effect"] == r.get("selected")):
             option = c.get("variant_of", c["effect"])
@@ -394,3 +384,23 @@ def report_text(d: dict) -> str:
                                         f"{d['final']['J_pooled_ls']:.4f}" if "J_pooled_ls" in d["final"] else "")
                  + ".")
     return "\n".join(lines)
+
+
+def last_resort_lines(rounds: list) -> list[str]:
+    """The report's lines on each generic option set against the best physical explanations (a round's
+    ``last_resort`` record of :func:`bayesdamper.diagnosis.loop.unnamed_last_resort`)."""
+    lines = []
+    for r in rounds:
+        lr = r.get("last_resort")
+        if lr:
+            rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f}, {x['n_folds']} folds"
+                               + ("" if x["beats"] else ": not beaten") + ")" if "gain_over" in x else x["effect"]
+                               for x in lr["rivals"]) or "none fitted"
+            first = lr.get("pairs_fitted_first") or []
+            lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gains over "
+                         f"each, named only when they pass the held-out rule"
+                         + (f"; fitted for it first: {', '.join(first)}" if first else "") + f"): {rivals}: "
+                         + ("named" if lr["kept"] else "not named")
+                         + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
+                            if lr["indistinguishable_from"] else "."))
+    return lines
