@@ -4,8 +4,10 @@ The first round of the select-and-refit loop (:mod:`bayesdamper.diagnosis.loop`)
 alone like any candidate. A rig effect on a two-state damper can be invisible to both single fits: eq. (7)'s
 per-window α_V and p_R absorb part of it, and the two-state model fitted alone ends where its accumulator does not
 refill (the refill conductance's profile is flat there) while the effect shows only with the accumulator refilling.
-:func:`two_state_pairs` screens every candidate on the two-state model held as fitted alone and held refilling, and
-fits the most promising jointly with it. :func:`search_option` is the loop's fit of an option.
+:func:`two_state_pairs` screens every candidate on the two-state model held as fitted alone, and every library effect
+also on it held refilling (:func:`screen_on_two_state`), and fits the most promising jointly with it
+(:func:`fit_pair`); before a generic option is named, :func:`physical_pairs_left` fits the library effects' pairs the
+screens did not rank among them. :func:`search_option` is the loop's fit of an option.
 """
 
 from __future__ import annotations
