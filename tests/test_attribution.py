@@ -544,18 +544,18 @@ def test_a_round_that_selects_nothing_says_why_for_each_option():
         "Selected: none - no candidate passes")
 
 
-def test_the_reports_line_on_a_generic_option_names_the_pairs_fitted_for_it_first():
-    """The report says which two-state pairs were fitted before the generic option was set against the physical
-    ones, each rival's paired gain, and the verdict; a record without pairs fitted first says nothing of them."""
+def test_the_reports_line_on_a_generic_option_names_the_pairs_fitted_before_naming_it():
+    """The report says which two-state pairs were fitted before the generic option was named, each rival's paired
+    gain, and the verdict; a record without such pairs says nothing of them."""
     from bayesdamper.diagnosis.summary import last_resort_lines
 
     rec = {"generic": "two_state+unnamed_dynamics@flow", "kept": False, "indistinguishable_from": ["two_state+x"],
-           "pairs_fitted_first": ["two_state+poppet_valve"],
+           "pairs_fitted_before_naming": ["two_state+poppet_valve"],
            "rivals": [{"effect": "two_state+poppet_valve", "gain_over": -12.5, "se": 3.0, "n_folds": 6,
                        "beats": False}]}
     (line,) = last_resort_lines([{"last_resort": rec}, {"last_resort": None}])
-    assert "fitted for it first: two_state+poppet_valve" in line
+    assert "before it was named, also fitted: two_state+poppet_valve" in line
     assert "two_state+poppet_valve (-12.5, se 3.0, 6 folds: not beaten)" in line
     assert line.endswith("not named; indistinguishable from two_state+x.")
-    (line,) = last_resort_lines([{"last_resort": {**rec, "pairs_fitted_first": [], "kept": True}}])
-    assert "fitted for it first" not in line and ": named;" in line
+    (line,) = last_resort_lines([{"last_resort": {**rec, "pairs_fitted_before_naming": [], "kept": True}}])
+    assert "also fitted" not in line and ": named;" in line

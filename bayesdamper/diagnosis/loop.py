@@ -15,10 +15,11 @@ first round, pairs of the two-state model with the candidates that best explain 
 jointly with the new ones (in a later round the candidates are first screened with them held, :func:`screen_spec`,
 and the best re-fitted jointly); a pair must also meet the criterion over its better member alone
 (:func:`check_pairs`). Only the first round's singles that can still decide get the simplex that finishes a
-refinement that did not converge (:func:`polish_contenders`). A generic option that would be selected in the
-first round is first set against the two-state model's pairs with every library effect whose screen improved on the
-two-state model alone (:func:`~bayesdamper.diagnosis.two_state_pairs.physical_pairs_left`), then against the best
-physical options out of sample (:func:`unnamed_last_resort`).
+refinement that did not converge (:func:`polish_contenders`). A generic option is set against the best physical
+options out of sample (:func:`unnamed_last_resort`); where it would be named in the first round, the two-state
+model's pairs with every library effect whose screen improved on the two-state model alone are fitted first
+(:func:`~bayesdamper.diagnosis.two_state_pairs.physical_pairs_left`) and it is set against the physical options
+again.
 Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected has its narrow-basin effects searched
 afresh and its effects' variants in their place (:mod:`bayesdamper.diagnosis.basins`), and is refined to the reported
@@ -259,18 +260,23 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         best = max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None
         last_resort = None
         if best is not None and holds_generic(best["effect"], specs):
-            more = []
-            if not sel_specs and screens is not None:  # the first round: the two-state model's pairs left first
-                search_step("the two-state model's pairs left, before a generic option")
-                more = physical_pairs_left(engine, screens, fits, specs, current["sse"], n_eff, flow_for, progress)
-                fits += more
-                rows += [{**_option_row(c, j_cur), "passes": False} for c in more]
-                check_pairs(rows)
             progress(f"diagnose: round {rnd + 1}, {best['effect']} against the best physical explanations")
             search_step("generic option against the physical ones")
-            best, last_resort = unnamed_last_resort(best, rows, fits, specs, engine, folds, sel_specs, fixed,
+            generic = best
+            best, last_resort = unnamed_last_resort(generic, rows, fits, specs, engine, folds, sel_specs, fixed,
                                                     current["sse"], n_eff, flow_for, lovo_cache)
-            last_resort["pairs_fitted_first"] = [c.effect for c in more]
+            if last_resort["kept"] and not sel_specs and screens is not None:
+                # before it is named in the first round: the two-state model's pairs the screens left, and again
+                search_step("the two-state model's pairs left, before a generic option is named")
+                more = physical_pairs_left(engine, screens, fits, specs, current["sse"], n_eff, flow_for, progress)
+                if more:
+                    fits += more
+                    rows += [{**_option_row(c, j_cur), "passes": False} for c in more]
+                    check_pairs(rows)
+                    search_step("generic option against the physical ones")
+                    best, last_resort = unnamed_last_resort(generic, rows, fits, specs, engine, folds, sel_specs,
+                                                            fixed, current["sse"], n_eff, flow_for, lovo_cache)
+                last_resort["pairs_fitted_before_naming"] = [c.effect for c in more]
         rival = runner_up(rows, best)  # after the last resort: the option it selects, and every option it scored
         if best is not None and rival is not None and "_lovo" in best:
             best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}

@@ -396,10 +396,11 @@ def last_resort_lines(rounds: list) -> list[str]:
             rivals = ", ".join(f"{x['effect']} ({x['gain_over']:+.1f}, se {x['se']:.1f}, {x['n_folds']} folds"
                                + ("" if x["beats"] else ": not beaten") + ")" if "gain_over" in x else x["effect"]
                                for x in lr["rivals"]) or "none fitted"
-            first = lr.get("pairs_fitted_first") or []
+            first = lr.get("pairs_fitted_before_naming") or []
             lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gains over "
                          f"each, named only when they pass the held-out rule"
-                         + (f"; fitted for it first: {', '.join(first)}" if first else "") + f"): {rivals}: "
+                         + (f"; before it was named, also fitted: {', '.join(first)}" if first else "")
+                         + f"): {rivals}: "
                          + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
