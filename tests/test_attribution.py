@@ -559,3 +559,56 @@ def test_the_reports_line_on_a_generic_option_names_the_pairs_fitted_before_nami
     assert line.endswith("not named; indistinguishable from two_state+x.")
     (line,) = last_resort_lines([{"last_resort": {**rec, "pairs_fitted_before_naming": [], "kept": True}}])
     assert "also fitted" not in line and ": named;" in line
+
+
+def test_a_generic_option_that_beats_the_rivals_fitted_loses_to_a_library_pair_fitted_before_naming_it(monkeypatch):
+    """The loop's wiring (fakes for the searches, no speed folds: an option passes when supported): in the first
+    round a two-state + generic pair is the only supported option and no physical rival passes, so it would be named;
+    the library pairs the screens left are fitted first, one of them (the two-state model with a valve) passes, and
+    it is selected instead; the round's record lists the pairs fitted and says the generic option was not named."""
+    import bayesdamper.diagnosis.loop as loop
+
+    generic = "unnamed_dynamics@flow"
+    names = ["two_state", generic, "friction", "poppet_valve"]
+    # J of the current model is 0.1 (unit residuals, forces of 10); supported: ΔBIC_eff <= -10 and J <= 0.08
+    table = {("two_state",): (-100.0, 0.085), (generic,): (-50.0, 0.09), ("friction",): (-20.0, 0.095),
+             ("poppet_valve",): (-10.0, 0.098), ("two_state", generic): (-500.0, 0.04),
+             ("two_state", "friction"): (-110.0, 0.083), (generic, "friction"): (-60.0, 0.088),
+             ("two_state", "poppet_valve"): (-800.0, 0.03)}
+
+    def fit_of(labels, score, j):
+        return SimpleNamespace(labels=labels, effect="+".join(labels), delta_bic=score, j_pooled=j, params={},
+                               effects={lab.split("@")[0]: {} for lab in labels}, n_evaluations=0,
+                               polish_pending=False, warm=None, cost={})
+
+    def fake_search(engine, specs, start, fixed, *a, new=None, grid_only=False, **k):
+        labels = tuple(new) if new else tuple(s.label for s in specs)
+        if grid_only:  # the second round's screens: nothing improves
+            return fit_of(labels, +5.0, 0.031)
+        return fit_of(labels, *table[labels])
+
+    asked = []
+
+    def fake_left(engine, screens, fits, specs, *a):
+        asked.append(sorted(f.effect for f in fits))
+        return [fit_of(("two_state", "poppet_valve"), *table[("two_state", "poppet_valve")])]
+
+    engine = SimpleNamespace(evaluate=lambda *a, **k: (np.full(3, 50.0), None, [np.ones(50)] * 3),
+                             set_warm=lambda w: None)
+    monkeypatch.setattr(loop, "search_option", fake_search)
+    monkeypatch.setattr(loop, "two_state_pairs", lambda *a: ([], SimpleNamespace(alone={})))
+    monkeypatch.setattr(loop, "physical_pairs_left", fake_left)
+    monkeypatch.setattr(loop, "research_basins", lambda search, fit, held, new: (fit, []))
+    monkeypatch.setattr(loop, "search_variants", lambda search, fit, held, new: (fit, [], {}))
+    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: fit_of(
+        ("two_state", "poppet_valve"), -805.0, 0.029))
+    monkeypatch.setattr(loop, "backward_check", lambda engine, sel, specs, fixed, *a: (sel, specs, fixed, []))
+    selected, fixed, rounds = loop.select_effects(engine, names, [np.full(50, 10.0)] * 3, lambda e: None,
+                                                  Progress(False))
+    assert selected == ["two_state", "poppet_valve"]
+    assert len(asked) == 1  # once, before the generic option would have been named
+    lr = rounds[0]["last_resort"]
+    assert lr["generic"] == f"two_state+{generic}" and not lr["kept"]
+    assert lr["pairs_fitted_before_naming"] == ["two_state+poppet_valve"]
+    assert rounds[0]["selected"] == "two_state+poppet_valve"
+    assert rounds[1]["selected"] is None

@@ -271,8 +271,11 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                 more = physical_pairs_left(engine, screens, fits, specs, current["sse"], n_eff, flow_for, progress)
                 if more:
                     fits += more
-                    rows += [{**_option_row(c, j_cur), "passes": False} for c in more]
+                    added = [_option_row(c, j_cur) for c in more]
+                    rows += added
                     check_pairs(rows)
+                    for row in added:  # out of sample, the last resort scores them; without folds supported passes
+                        row["passes"] = bool(folds is None and row["supported"])
                     search_step("generic option against the physical ones")
                     best, last_resort = unnamed_last_resort(generic, rows, fits, specs, engine, folds, sel_specs,
                                                             fixed, current["sse"], n_eff, flow_for, lovo_cache)
