@@ -120,24 +120,24 @@ def screen_on_two_state(engine, fits: list, specs: dict, remaining: list, curren
     ts = next((c for c in fits if len(c.labels) == 1 and specs[c.labels[0]].effect == TWO_STATE), None)
     if ts is None:
         return None
-    held = dict(ts.effects[TWO_STATE])
-    refilling = {**held, REFILL: REFILL_START}
-    screened, on_refill, alone_pts = [], {}, {}
+    screens = TwoStateScreens(ts, dict(ts.effects[TWO_STATE]), [], {}, {})
+    screened = []
     for label in remaining:
         if specs[label].effect == TWO_STATE:
             continue
         progress(f"diagnose: round 1, screening {label} on the two-state model")
-        c = fit_joint(engine, [specs[label]], {}, {TWO_STATE: held}, current_sse, n_eff, flow_for, effect_argument,
-                      grid_only=True, screen_global=True)
-        alone_pts[label] = dict(c.effects[specs[label].effect])
+        c = fit_joint(engine, [specs[label]], {}, {TWO_STATE: screens.held}, current_sse, n_eff, flow_for,
+                      effect_argument, grid_only=True, screen_global=True)
+        screens.alone[label] = dict(c.effects[specs[label].effect])
         if not holds_generic(label, specs):
-            r = fit_joint(engine, [specs[label]], {}, {TWO_STATE: refilling}, current_sse, n_eff, flow_for,
+            r = fit_joint(engine, [specs[label]], {}, {TWO_STATE: screens.refilling}, current_sse, n_eff, flow_for,
                           effect_argument, grid_only=True, screen_global=True)
-            on_refill[label] = dict(r.effects[specs[label].effect])
+            screens.on_refill[label] = dict(r.effects[specs[label].effect])
             c = min(c, r, key=lambda f: f.delta_bic)
         screened.append(c)
         progress.advance()
-    return TwoStateScreens(ts, held, sorted(screened, key=lambda c: c.delta_bic), alone_pts, on_refill)
+    screens.ranked = sorted(screened, key=lambda c: c.delta_bic)
+    return screens
 
 
 def fit_pair(engine, screens: TwoStateScreens, label: str, fits: list, specs: dict, current_sse, n_eff, flow_for,
