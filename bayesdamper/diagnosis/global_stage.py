@@ -39,7 +39,8 @@ GLOBAL_LM_ITER = 4
 #: a log parameter) in some narrow-basin parameter; values of one axis closer than this are merged.
 GLOBAL_DISTINCT = 0.1
 #: At most this many values per narrow axis (a frequency and a damping ratio taken as pairs count as one axis):
-#: at most 3^3 = 27 global starts, for the four-parameter valve, each one evaluation on the screening subset.
+#: at most 3^4 = 81 global starts for the five-parameter valve (frequency and damping, cracking pressure, span,
+#: bleed), each one evaluation on the screening subset.
 GLOBAL_AXIS_VALUES = 3
 #: A start whose screening SSE exceeds the best start's by more than this factor is not refined.
 GLOBAL_SSE_RATIO = 2.0

@@ -37,7 +37,9 @@ FREQ_FACTOR, DAMPING_FACTOR, GAIN_FACTOR = 2.0, 4.0, 30.0
 
 
 def _second_order(poles: list[dict]) -> tuple[float, float] | None:
-    """(f [Hz], ζ) of the dominant pair of part 1's poles: the first complex pole, else two real ones."""
+    """(f [Hz], ζ) of the dominant pair of part 1's poles: the first complex pole, else the two slowest real ones.
+    A single real pole τ is paired with one ten times faster, so its pair is f = √10 / (2π τ) at ζ = 1.1 √10 / 2
+    ≈ 1.74 whatever τ is: a heavily damped, lag-like start, not a measured damping."""
     for p in poles:  # sysid's PoleEstimate: kind "oscillatory" (a pair) or "real"
         if p.get("kind") != "real" and p.get("frequency_hz"):
             return float(p["frequency_hz"]), float(p.get("damping") or 0.2)
