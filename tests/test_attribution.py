@@ -431,6 +431,7 @@ def test_before_a_generic_option_every_library_effect_the_screens_found_better_i
 
     monkeypatch.setattr(tsp, "fit_joint", fake_fit)
     monkeypatch.setattr(tsp, "PAIR_FROM", 1)
+    monkeypatch.setattr(tsp, "residual_peaks", lambda *a: [])  # no spectral peak: no ringing pair (their own tests)
     ts = SimpleNamespace(labels=("two_state",), delta_bic=-400.0, effects={"two_state": {}}, effect="two_state")
     out, screens = tsp.two_state_pairs(None, [ts], specs, list(specs), np.zeros(3), np.ones(3), None,
                                        Progress(False))
@@ -598,7 +599,7 @@ def test_a_generic_option_that_beats_the_rivals_fitted_loses_to_a_library_pair_f
     monkeypatch.setattr(loop, "search_option", fake_search)
     monkeypatch.setattr(loop, "two_state_pairs", lambda *a: ([], SimpleNamespace(alone={})))
     monkeypatch.setattr(loop, "physical_pairs_left", fake_left)
-    monkeypatch.setattr(loop, "research_basins", lambda search, fit, held, new: (fit, []))
+    monkeypatch.setattr(loop, "research_basins", lambda search, fit, held, new, subset=None: (fit, []))
     monkeypatch.setattr(loop, "search_variants", lambda search, fit, held, new: (fit, [], {}))
     monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: fit_of(
         ("two_state", "poppet_valve"), -805.0, 0.029))

@@ -51,6 +51,56 @@ def test_a_search_afresh_replaces_the_option_only_by_very_strong_evidence(afresh
                      "afresh_J_pooled": found.j_pooled, "replaced": replaced}]
 
 
+@pytest.mark.parametrize(("on_subset", "afresh", "continued", "replaced"),
+                         [(-480.0, -1500.0, True, True), (-480.0, -1005.0, True, False),
+                          (-400.0, -1500.0, False, False), (-450.0, -1500.0, False, False)])
+def test_with_a_subset_the_search_afresh_goes_on_to_every_window_only_if_better_there(on_subset, afresh, continued,
+                                                                                      replaced):
+    """The option scores −450 on the screening windows where it stands (one evaluation, no refinement); the search
+    afresh runs there first (grid, global stage, refinement, no simplex) and ends at ``on_subset``. Only a search
+    better there than the option (−480) goes on: a refinement on every window from its optimum, every effect started
+    there, which replaces the option by the same very strong evidence as without a subset. A search no better on the
+    subset (−400, or −450, a tie) stops there and the option's fit stands."""
+    subset = np.array([0, 3, 5])
+    calls = []
+    first = _fit("two_state+poppet_valve", on_subset, {"two_state": {**OPTION["two_state"], "polytropic_exponent": 1.3},
+                                                       "poppet_valve": {**OPTION["poppet_valve"],
+                                                                        "cracking_pressure_Pa": 1.5e4}})
+    found = _fit("two_state+poppet_valve", afresh, first.effects)
+
+    def search(cand, start, idx=None, max_iter=None, polish=None):
+        calls.append((tuple(sp.label for sp in cand), start, None if idx is None else list(idx), max_iter,
+                      polish, cand[-1].poles))
+        if idx is None:
+            return found
+        return _fit("two_state+poppet_valve", -450.0, OPTION) if max_iter == 0 else first
+
+    option = _fit("two_state+poppet_valve", -1000.0, OPTION)
+    valve = CandidateSpec("poppet_valve", poles=((2.0, 0.3),))
+    out, rows = basins.research_basins(search, option, [], [CandidateSpec("two_state"), valve], subset=subset)
+    pair = ("two_state", "poppet_valve")
+    assert calls[:2] == [(pair, OPTION, [0, 3, 5], 0, None, ((2.0, 0.3),)),  # the option where it stands
+                         # afresh from the data's starts, no simplex on the subset
+                         (pair, {"two_state": OPTION["two_state"]}, [0, 3, 5], None, False, ())]
+    assert calls[2:] == ([(pair, first.effects, None, None, None, ((2.0, 0.3),))] if continued else [])
+    assert out is (found if replaced else option)
+    row = {"candidate": "poppet_valve", "delta_BIC_eff": -1000.0, "J_pooled": option.j_pooled,
+           "subset_delta_BIC_eff": -450.0, "subset_afresh_delta_BIC_eff": on_subset, "continued": continued,
+           "replaced": replaced}
+    assert rows == [{**row, "afresh_delta_BIC_eff": afresh, "afresh_J_pooled": found.j_pooled} if continued else row]
+
+
+def test_the_subset_of_a_search_afresh_is_whole_windows_only():
+    """The engine's screening windows when they are windows; none without a screen, or when the screen is short
+    stretches appended after the windows (a whole-record data set)."""
+    from types import SimpleNamespace
+
+    assert list(basins.window_subset(SimpleNamespace(screen=np.array([0, 4, 8]), n=12))) == [0, 4, 8]
+    assert basins.window_subset(SimpleNamespace(screen=None, n=12)) is None
+    assert basins.window_subset(SimpleNamespace(screen=np.arange(12, 20), n=12)) is None
+    assert basins.window_subset(SimpleNamespace(n=12)) is None
+
+
 def test_effects_selected_before_start_at_the_option_and_each_narrow_candidate_is_searched():
     """A later round's option (the valve selected before, a servo and a mount new): the servo alone is searched
     afresh, the valve and the mount start at the option's values; a replacement carries into the next search."""
@@ -122,8 +172,9 @@ def test_on_a_valve_the_search_afresh_leaves_a_wrong_basin(tmp_path):
                            dtol=LM_DTOL_SEARCH)
         search = partial(search_option, engine, fixed={}, current_sse=sse, n_eff=n_eff, flow_for=p.flow_for,
                          new=("two_state", "poppet_valve"))
-        out, rows = basins.research_basins(search, option, [], specs)
-        again, rows2 = basins.research_basins(search, out, [], specs)
+        subset = basins.window_subset(engine)
+        out, rows = basins.research_basins(search, option, [], specs, subset=subset)
+        again, rows2 = basins.research_basins(search, out, [], specs, subset=subset)
     finally:
         engine.close()
     # the generator's own J on these windows, as the confusion table computes it
@@ -174,3 +225,24 @@ def test_an_option_without_variants_is_not_searched_again():
     out, rows, added = basins.search_variants(search, option, [], [CandidateSpec("two_state"),
                                                                    CandidateSpec("series_compliance")])
     assert out is option and rows == [] and added == {}
+
+
+def test_the_reports_lines_say_whether_a_search_afresh_went_on_and_what_it_found():
+    """A search afresh stopped on the screening windows says so with both scores there; one that went on gives the
+    option's and the search's pooled J and ΔBIC_eff and the verdict; one without a subset has no subset scores."""
+    from bayesdamper.diagnosis.summary import basins_lines
+
+    base = {"candidate": "poppet_valve", "delta_BIC_eff": -3098.0, "J_pooled": 0.0050}
+    stopped = {**base, "subset_delta_BIC_eff": -1040.0, "subset_afresh_delta_BIC_eff": -980.0, "continued": False,
+               "replaced": False}
+    went_on = {**base, "subset_delta_BIC_eff": -1040.0, "subset_afresh_delta_BIC_eff": -1100.0, "continued": True,
+               "afresh_delta_BIC_eff": -3200.0, "afresh_J_pooled": 0.0045, "replaced": True}
+    whole = {**base, "afresh_delta_BIC_eff": -3090.0, "afresh_J_pooled": 0.0051, "replaced": False}
+    rounds = [{"selected": "two_state+poppet_valve", "candidates": [
+        {"effect": "two_state+poppet_valve", "basins_afresh": [stopped, went_on, whole]},
+        {"effect": "two_state+friction", "basins_afresh": [whole]}]}]
+    a, b, c = basins_lines(rounds)
+    assert "on the screening windows delta-BIC_eff -1040 -> -980, no better there, not continued" in a
+    assert a.endswith("the option's fit stands") and "J 0.0050" not in a
+    assert "-1040 -> -1100, J 0.0050 -> 0.0045 (delta-BIC_eff -3098 -> -3200): another basin" in b
+    assert "screening" not in c and c.endswith("(delta-BIC_eff -3098 -> -3090): the option's fit stands")

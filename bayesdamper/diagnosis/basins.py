@@ -19,6 +19,15 @@ to the true one). The search replaces the option's fit only when its evidence is
 than |:data:`REPLACE_DELTA_BIC`| (both fits carry the same parameters, so this is a difference of fit alone): a fit
 the option already reached is not replaced by one that differs from it only by the search's tolerance.
 
+With many windows the search afresh runs first on the screening windows (:func:`window_subset`, the subset whose windows
+rank every search's grid points), grid, global stage and refinement (no simplex after a refinement that has not
+converged: the pass only decides whether the search goes on), and the option is scored there where it stands. The search
+goes on to every window (a refinement from the subset's optimum) only if it fits the screening windows better than the
+option does: refined on the subset, the search fits it at least as well as its basin's optimum on every window would, so
+a basin that is no better there than the option has no lead on the subset to carry to the rest. A stiff valve's basin at
+a light damping ratio costs several times a well-damped one's per evaluation; where the option's fit stands, the search
+never solves the other windows.
+
 An effect can also have variants: another structure with the same parameters, declared by the variant's module
 (``VARIANT_OF``: :mod:`~bayesdamper.physics.effects.check_valves`, a check valve for each flow direction, of the poppet
 valve's one element). A variant is not a candidate of its own; once a round has selected an option holding the
@@ -49,23 +58,47 @@ def data_starts(spec: CandidateSpec) -> CandidateSpec:
     return dataclasses.replace(spec, starts={}, poles=(), thresholds=(), points=())
 
 
-def research_basins(search, fit, held: list[CandidateSpec], new: list[CandidateSpec]) -> tuple[object, list[dict]]:
+def window_subset(engine):
+    """The engine's screening windows (``engine.screen``) when they are windows of the data set, else None (no
+    subset, or short stretches of the windows: a search of the model needs whole windows)."""
+    screen = getattr(engine, "screen", None)
+    n = getattr(engine, "n", None)
+    return None if screen is None or n is None or not (len(screen) and max(screen) < n) else screen
+
+
+def research_basins(search, fit, held: list[CandidateSpec], new: list[CandidateSpec],
+                    subset=None) -> tuple[object, list[dict]]:
     """The option ``fit`` (``held``: the effects selected before, re-fitted with it; ``new``: its own candidates)
     with each narrow-basin candidate of ``new`` searched afresh from the data's starts (:func:`data_starts`), the
-    others starting at the option's optimum. ``search(specs, start)``: the loop's search of an option
-    (:func:`bayesdamper.diagnosis.loop.search_option`, scored against the current model, ``new``'s labels new).
+    others starting at the option's optimum. ``search(specs, start, **kw)``: the loop's search of an option
+    (:func:`bayesdamper.diagnosis.loop.search_option`, scored against the current model, ``new``'s labels new;
+    ``idx``, ``max_iter``, ``polish`` as :func:`~bayesdamper.diagnosis.candidates.fit_joint`'s). ``subset``: window
+    indices (:func:`window_subset`) where the search afresh runs first, continued on every window only if it fits
+    them better than the option (module docstring); None: on every window at once.
 
     Returns the better fit (the option's own unless a search afresh lowers ΔBIC_eff by more than
     |:data:`REPLACE_DELTA_BIC`|) and a row per search afresh for the report: the candidate, ΔBIC_eff and pooled J of
-    the option and of the search, and whether the search replaced it."""
+    the option and of the search, and whether the search replaced it; with a subset also both ΔBIC_eff there
+    (``subset_*``) and whether the search was ``continued`` (if not, it has no ``afresh_*`` values)."""
     cand = held + new
     rows = []
     for sp in (s for s in new if has_narrow(s)):
-        again = search([data_starts(sp) if o is sp else o for o in cand],
-                       {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp})
+        afresh = [data_starts(sp) if o is sp else o for o in cand]
+        others = {o.label: dict(fit.effects[o.effect]) for o in cand if o is not sp}
+        row = {"candidate": sp.label, "delta_BIC_eff": float(fit.delta_bic), "J_pooled": float(fit.j_pooled)}
+        if subset is None:
+            again = search(afresh, others)
+        else:
+            here = search(cand, {o.label: dict(fit.effects[o.effect]) for o in cand}, idx=subset, max_iter=0)
+            first = search(afresh, others, idx=subset, polish=False)
+            row.update(subset_delta_BIC_eff=float(here.delta_bic), subset_afresh_delta_BIC_eff=float(first.delta_bic),
+                       continued=bool(first.delta_bic < here.delta_bic))
+            if not row["continued"]:
+                rows.append({**row, "replaced": False})
+                continue
+            again = search(cand, {o.label: dict(first.effects[o.effect]) for o in cand})
         better = again.delta_bic - fit.delta_bic < REPLACE_DELTA_BIC
-        rows.append({"candidate": sp.label, "delta_BIC_eff": float(fit.delta_bic), "J_pooled": float(fit.j_pooled),
-                     "afresh_delta_BIC_eff": float(again.delta_bic), "afresh_J_pooled": float(again.j_pooled),
+        rows.append({**row, "afresh_delta_BIC_eff": float(again.delta_bic), "afresh_J_pooled": float(again.j_pooled),
                      "replaced": bool(better)})
         if better:
             fit = again

@@ -152,9 +152,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
         with the new one: earlier selections are re-fitted jointly in every round).
     start : dict
         ``{label: {param: value}}`` starting values; a candidate without one is searched on a grid first, and its
-        narrow-basin parameters then by the global stage (module docstring; not for ``grid_only``, ``idx`` or
-        ``max_iter`` 0). The fit's ``at_bound`` lists the parameters that end on a bound (:func:`bound_flags`), its
-        ``cost`` the seconds and evaluations per stage.
+        narrow-basin parameters then by the global stage (module docstring; not for ``max_iter`` 0, nor for a
+        ``grid_only`` screen without ``screen_global``). The fit's ``at_bound`` lists the parameters that end on a
+        bound (:func:`bound_flags`), its ``cost`` the seconds and evaluations per stage.
     fixed : dict
         ``{effect: {param: value}}`` held at these values.
     current_sse, n_eff : ndarray
@@ -162,7 +162,9 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
     new : tuple of str, optional
         Labels whose parameters count in the ΔBIC penalty (default: those without a start).
     idx : ndarray of int, optional
-        Fit on these transients only (leave-velocities-out), then no interval is computed.
+        Fit on these transients only (leave-velocities-out; the first pass of a search afresh,
+        :func:`bayesdamper.diagnosis.basins.research_basins`), grid and global stage included; no interval is
+        computed then.
     max_iter : int, optional
         Levenberg-Marquardt iterations of the local refinement (:func:`_profile_lm`; default :data:`LM_ITER`;
         0: none, the score and intervals at ``start``). A refinement given its iterations is not finished by the
@@ -367,7 +369,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
             best = cands[int(np.argmin(vals))]
             stage("grid")
         refine_from = [best]
-        if (searching or (grid_only and screen_global)) and grid_dims and idx is None:
+        if (searching or (grid_only and screen_global)) and grid_dims:
             # the global stage: starts from the signature and the data on the narrow-basin axes, scored like the
             # grid; the best few distinct starts of both are refined
             def peaks():

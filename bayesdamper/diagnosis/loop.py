@@ -48,7 +48,7 @@ from bayesdamper.diagnosis.attribution import (
     se_margin,
     velocity_folds,
 )
-from bayesdamper.diagnosis.basins import research_basins, search_variants
+from bayesdamper.diagnosis.basins import research_basins, search_variants, window_subset
 from bayesdamper.diagnosis.candidates import (
     CandidateSpec,
     effective_sizes,
@@ -301,7 +301,8 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         search = partial(search_option, engine, fixed={}, current_sse=current["sse"], n_eff=n_eff, flow_for=flow_for,
                          new=fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
-        fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):])
+        fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):],
+                                                    subset=window_subset(engine))
         fit, best["variants"], added = search_variants(search, fit, sel_specs, cand[len(sel_specs):])
         if added:  # the option as selected is the rule's choice with a variant in an effect's place
             specs.update(added)

@@ -337,21 +337,7 @@ def report_text(d: dict) -> str:
                 lines.append(f"    evidence against the runner-up {a['runner_up']}: {a['gain']:+.1f} "
                              f"(se {a['se']:.1f})")
     lines += last_resort_lines(d.get("rounds", []))
-    for k, r in enumerate(d.get("rounds", [])):
-        for c in (c for c in r["candidates"] if c["effect"] == r.get("selected")):
-            option = c.get("variant_of", c["effect"])
-            for b in c.get("basins_afresh") or []:
-                lines.append(f"  round {k + 1}: {b['candidate']} of {option} searched afresh from the data's "
-                             f"starts, the option's other effects at its optimum: J {b['J_pooled']:.4f} -> "
-                             f"{b['afresh_J_pooled']:.4f} (delta-BIC_eff {b['delta_BIC_eff']:+.0f} -> "
-                             f"{b['afresh_delta_BIC_eff']:+.0f}): " + ("another basin, which replaces the option's fit"
-                                                                      if b["replaced"] else "the option's fit stands"))
-            for v in c.get("variants") or []:
-                lines.append(f"  round {k + 1}: {v['candidate']} of {option} searched as {v['variant']} in its "
-                             f"place, the option's other effects at its optimum: J {v['J_pooled']:.4f} -> "
-                             f"{v['variant_J_pooled']:.4f} (delta-BIC_eff {v['delta_BIC_eff']:+.0f} -> "
-                             f"{v['variant_delta_BIC_eff']:+.0f}): " + (f"{v['variant']} replaces it" if v["replaced"]
-                                                                       else "the option's fit stands"))
+    lines += basins_lines(d.get("rounds", []))
     for r in (d.get("rounds") or [])[-1:]:
         for b in r.get("backward_check") or []:
             lines.append(f"Backward check: {b['effect']} dropped (against the model without it delta-BIC_eff "
@@ -404,4 +390,33 @@ def last_resort_lines(rounds: list) -> list[str]:
                          + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
+    return lines
+
+
+def basins_lines(rounds: list) -> list[str]:
+    """The report's lines on each selected option's searches afresh and variants
+    (:mod:`bayesdamper.diagnosis.basins`): what each found and whether the option's fit stands."""
+    lines = []
+    for k, r in enumerate(rounds):
+        for c in (c for c in r["candidates"] if c["effect"] == r.get("selected")):
+            option = c.get("variant_of", c["effect"])
+            for b in c.get("basins_afresh") or []:
+                head = (f"  round {k + 1}: {b['candidate']} of {option} searched afresh from the data's starts, the "
+                        "option's other effects at its optimum: ")
+                if "subset_delta_BIC_eff" in b:
+                    head += (f"on the screening windows delta-BIC_eff {b['subset_delta_BIC_eff']:+.0f} -> "
+                             f"{b['subset_afresh_delta_BIC_eff']:+.0f}, ")
+                if not b.get("continued", True):
+                    lines.append(head + "no better there, not continued: the option's fit stands")
+                    continue
+                lines.append(head + f"J {b['J_pooled']:.4f} -> {b['afresh_J_pooled']:.4f} (delta-BIC_eff "
+                             f"{b['delta_BIC_eff']:+.0f} -> {b['afresh_delta_BIC_eff']:+.0f}): "
+                             + ("another basin, which replaces the option's fit" if b["replaced"]
+                                else "the option's fit stands"))
+            for v in c.get("variants") or []:
+                lines.append(f"  round {k + 1}: {v['candidate']} of {option} searched as {v['variant']} in its "
+                             f"place, the option's other effects at its optimum: J {v['J_pooled']:.4f} -> "
+                             f"{v['variant_J_pooled']:.4f} (delta-BIC_eff {v['delta_BIC_eff']:+.0f} -> "
+                             f"{v['variant_delta_BIC_eff']:+.0f}): " + (f"{v['variant']} replaces it" if v["replaced"]
+                                                                       else "the option's fit stands"))
     return lines

@@ -6,8 +6,9 @@ per-window α_V and p_R absorb part of it, and the two-state model fitted alone 
 refill (the refill conductance's profile is flat there) while the effect shows only with the accumulator refilling.
 :func:`two_state_pairs` screens every candidate on the two-state model held as fitted alone, and every library effect
 also on it held refilling (:func:`screen_on_two_state`), and fits the most promising jointly with it
-(:func:`fit_pair`); before a generic option is named, :func:`physical_pairs_left` fits the library effects' pairs the
-screens did not rank among them. :func:`search_option` is the loop's fit of an option.
+(:func:`fit_pair`), and each ringing library effect left out from the residual's spectral peaks
+(:func:`ringing_pairs`); before a generic option is named, :func:`physical_pairs_left` fits the library effects' pairs
+the screens did not rank among them. :func:`search_option` is the loop's fit of an option.
 """
 
 from __future__ import annotations
@@ -15,14 +16,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from bayesdamper.diagnosis.candidates import GLOBAL_LM_ITER, LM_ITER, fit_joint
+import numpy as np
+
+from bayesdamper.core.errors import BayesDamperError
+from bayesdamper.diagnosis.candidates import GLOBAL_LM_ITER, LM_ITER, fit_joint, search_params
 from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
+from bayesdamper.diagnosis.global_stage import narrow_kind, spectral_peaks
 from bayesdamper.diagnosis.spec import best_and_physical, holds_generic
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
 
 __all__ = ["NO_INTERVALS", "PAIR_FROM", "REFILL", "REFILL_START", "TWO_STATE", "TwoStateScreens", "fit_pair",
-           "physical_pairs_left", "screen_on_two_state", "search_option", "two_state_pairs"]
+           "physical_pairs_left", "residual_peaks", "ringing_pairs", "ringing_params", "screen_on_two_state",
+           "search_option", "two_state_pairs"]
 
 #: ``intervals_to`` of the search's fits: none. The options are compared by their optima; the option selected gets
 #: its intervals at its optimum (two re-fits of every window per parameter, spared for every option that is not).
@@ -67,7 +73,8 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     model, grid and global stage) and the candidate's own optimum where it improved alone. Each start is refined for
     :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
     budget. The best fit is the option: a valve's profile has several basins, and the screen's coarse grid may start
-    it in the wrong one. Returns those joint fits (options like any pair) and the screens
+    it in the wrong one. Every ringing library effect left unpaired is then paired from the residual's spectral peaks
+    (:func:`ringing_pairs`). Returns those joint fits (options like any pair) and the screens
     (:class:`TwoStateScreens`; a later round that holds the two-state model alone screens at each candidate's point
     on the model as fitted alone, ``alone``), None without a two-state fit. A pair the round has already fitted from
     its members' own optima is fitted from these starts too, and the best of all its fits replaces it in ``fits``:
@@ -86,8 +93,10 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
             if len(f.labels) == 1 and f.delta_bic < 0 and specs[f.labels[0]].effect != TWO_STATE][:PAIR_FROM]
     # and the best library effects among the screens that improve on eq. (7) (best_and_physical)
     lead += [c.labels[0] for c in best_and_physical([c for c in ranked if c.delta_bic < 0], specs, PAIR_FROM)]
-    for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]:
-        best = fit_pair(engine, screens, c.labels[0], fits, specs, current_sse, n_eff, flow_for, progress)
+    pairs = [fit_pair(engine, screens, c.labels[0], fits, specs, current_sse, n_eff, flow_for, progress)
+             for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]]
+    pairs += ringing_pairs(engine, screens, specs, current_sse, n_eff, flow_for, progress)
+    for best in pairs:
         earlier = have.get(frozenset(best.labels))
         best = min([best] + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
         if earlier is None:
@@ -95,6 +104,60 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
         else:  # the pair of the round's best singles, fitted from their own optima: the better fit stands for it
             fits[fits.index(earlier)] = best
     return out, screens
+
+
+def ringing_params(spec) -> tuple[str, str] | None:
+    """The names of the candidate's free natural frequency and damping ratio (a ringing element: a valve, a servo
+    loop), or None when it has not both (:func:`~bayesdamper.diagnosis.global_stage.narrow_kind`)."""
+    kinds = {narrow_kind(spec.effect, p.name): p.name for p in search_params(spec)}
+    return (kinds["frequency"], kinds["damping"]) if "frequency" in kinds and "damping" in kinds else None
+
+
+def residual_peaks(engine, held: dict, flow_for) -> list[tuple[float, float]]:
+    """(f [Hz], ζ) of the spectral peaks (:func:`~bayesdamper.diagnosis.global_stage.spectral_peaks`) of what the
+    two-state model held at ``held`` leaves on the screening windows (every window without them): one evaluation."""
+    e = {TWO_STATE: held}
+    try:
+        flow = flow_for(e)
+    except BayesDamperError:
+        return []
+    rows = engine.screen if getattr(engine, "screen", None) is not None else np.arange(engine.n)
+    resid = engine.evaluate(effect_argument(e), flow, idx=rows)[2]
+    times = [getattr(engine.problems[int(k)], "time", None) for k in rows]
+    return spectral_peaks(resid, times) if all(t is not None for t in times) else []
+
+
+def ringing_pairs(engine, screens: TwoStateScreens, specs: dict, current_sse, n_eff, flow_for, progress) -> list:
+    """The pairs of the two-state model with each ringing library effect (:func:`ringing_params`) the ranked pairs
+    left out, each started at the spectral peaks of what the two-state model leaves (:func:`residual_peaks`).
+
+    A ringing element's basin in its damping ratio is narrow: the screens score each candidate where its grid and
+    global starts stand, unrefined, and a valve near its right frequency at half its damping ratio can fit worse there
+    than no valve. Where the residual's signature is first order (a valve's lag-like response), the valve's only
+    frequency-damping start is the overdamped pair made of that pole
+    (:func:`bayesdamper.diagnosis.unnamed.signature_poles`), not a measurement of its damping; so such a valve can rank
+    behind one-parameter effects that gain under a percent and never be paired. The residual's spectral peaks measure
+    both: each start is the candidate's screen point on the two-state model with a peak's frequency and damping ratio,
+    refined for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations, and the best is continued to
+    the search's budget (as :func:`fit_pair`'s starts are)."""
+    labels = [lab for lab in screens.alone if lab not in screens.paired and not holds_generic(lab, specs)
+              and ringing_params(specs[lab]) is not None]
+    peaks = residual_peaks(engine, screens.held, flow_for) if labels else []
+    out = []
+    for label in labels if peaks else []:
+        pair = (screens.ts.labels[0], label)
+        progress(f"diagnose: round 1, fitting the pair {pair[0]} + {label} from the residual's spectral peaks")
+        screens.paired.add(label)
+        f_name, z_name = ringing_params(specs[label])
+        tried = [search_option(engine, [specs[pair[0]], specs[label]],
+                               {pair[0]: screens.held, label: {**screens.alone[label], f_name: f, z_name: z}}, {},
+                               current_sse, n_eff, flow_for, new=pair, max_iter=GLOBAL_LM_ITER) for f, z in peaks]
+        first = min(tried, key=lambda f: f.delta_bic)
+        tried.append(search_option(engine, [specs[pair[0]], specs[label]],
+                                   {lab: first.effects[specs[lab].effect] for lab in pair}, {}, current_sse,
+                                   n_eff, flow_for, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER))
+        out.append(min(tried, key=lambda f: f.delta_bic))
+    return out
 
 
 @dataclass
