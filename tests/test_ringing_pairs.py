@@ -63,10 +63,11 @@ def test_no_peak_where_the_flow_of_the_held_model_is_infeasible():
 
 def test_a_ringing_library_effect_left_unpaired_is_paired_from_each_peak(monkeypatch):
     """The valve's screen ranks behind three one-parameter effects (PAIR_FROM 3): the ranked pairs leave it out. It
-    is paired from every spectral peak, its other parameters at its screen point on the two-state model as fitted
-    alone, each start refined for GLOBAL_LM_ITER iterations and the best continued to the budget; the pair is an
-    option and the valve counts as paired. The servo (ringing, but ranked among the pairs) and the generic ringing
-    filter are not fitted again; a non-ringing effect left out is not fitted from the peaks."""
+    is paired from the pair's own starts (its screen points on the two-state model as fitted alone and refilling) and
+    from every spectral peak, its other parameters at its screen point on the model as fitted alone; each start is
+    refined for GLOBAL_LM_ITER iterations and the best continued to the budget; the pair is an option and the valve
+    counts as paired. The servo (ringing, but ranked among the pairs) and the generic ringing filter are not fitted
+    again; a non-ringing effect left out is not fitted from the peaks."""
     generic = "unnamed_dynamics@flow"
     names = ("two_state", "backlash", "actuator_lag", "series_compliance", "command_displacement", "poppet_valve",
              "friction", generic)
@@ -107,7 +108,9 @@ def test_a_ringing_library_effect_left_unpaired_is_paired_from_each_peak(monkeyp
                                        Progress(False))
     # the ranked pairs (also the best physical screens), then the valve from the peaks; the servo once, by its rank
     assert [o.labels[1] for o in out] == ["backlash", "actuator_lag", "command_displacement", "poppet_valve"]
-    assert refined == [(held, {**point, "natural_frequency_Hz": f, "damping_ratio": z}) for f, z in peaks]
+    refilling = {**held, tsp.REFILL: tsp.REFILL_START}
+    assert refined == [(held, point), (refilling, point)] + [
+        (held, {**point, "natural_frequency_Hz": f, "damping_ratio": z}) for f, z in peaks]
     assert continued == [(held, {**point, "natural_frequency_Hz": 2.39, "damping_ratio": 0.227})]
     valve = next(o for o in out if o.labels[1] == "poppet_valve")
     assert valve.delta_bic == -3300.0 and "poppet_valve" in screens.paired
@@ -121,8 +124,8 @@ def test_without_a_peak_or_a_ringing_candidate_nothing_is_fitted(monkeypatch):
                                   {"poppet_valve": {}, "friction": {}}, {})
     monkeypatch.setattr(tsp, "residual_peaks", lambda *a: [])
     monkeypatch.setattr(tsp, "fit_joint", lambda *a, **k: pytest.fail("no fit without a start"))
-    assert tsp.ringing_pairs(None, screens, specs, np.zeros(3), np.ones(3), None, Progress(False)) == []
+    assert tsp.ringing_pairs(None, screens, [], specs, np.zeros(3), np.ones(3), None, Progress(False)) == []
     assert screens.paired == set()
     screens.paired.add("poppet_valve")
     monkeypatch.setattr(tsp, "residual_peaks", lambda *a: pytest.fail("no evaluation without a ringing candidate"))
-    assert tsp.ringing_pairs(None, screens, specs, np.zeros(3), np.ones(3), None, Progress(False)) == []
+    assert tsp.ringing_pairs(None, screens, [], specs, np.zeros(3), np.ones(3), None, Progress(False)) == []

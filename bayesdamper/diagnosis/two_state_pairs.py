@@ -95,7 +95,7 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     lead += [c.labels[0] for c in best_and_physical([c for c in ranked if c.delta_bic < 0], specs, PAIR_FROM)]
     pairs = [fit_pair(engine, screens, c.labels[0], fits, specs, current_sse, n_eff, flow_for, progress)
              for c in ranked[:PAIR_FROM] + [c for c in ranked[PAIR_FROM:] if c.labels[0] in lead]]
-    pairs += ringing_pairs(engine, screens, specs, current_sse, n_eff, flow_for, progress)
+    pairs += ringing_pairs(engine, screens, fits, specs, current_sse, n_eff, flow_for, progress)
     for best in pairs:
         earlier = have.get(frozenset(best.labels))
         best = min([best] + ([earlier] if earlier is not None else []), key=lambda f: f.delta_bic)
@@ -127,9 +127,11 @@ def residual_peaks(engine, held: dict, flow_for) -> list[tuple[float, float]]:
     return spectral_peaks(resid, times) if all(t is not None for t in times) else []
 
 
-def ringing_pairs(engine, screens: TwoStateScreens, specs: dict, current_sse, n_eff, flow_for, progress) -> list:
+def ringing_pairs(engine, screens: TwoStateScreens, fits: list, specs: dict, current_sse, n_eff, flow_for,
+                  progress) -> list:
     """The pairs of the two-state model with each ringing library effect (:func:`ringing_params`) the ranked pairs
-    left out, each started at the spectral peaks of what the two-state model leaves (:func:`residual_peaks`).
+    left out: from :func:`fit_pair`'s starts and from the spectral peaks of what the two-state model leaves
+    (:func:`residual_peaks`).
 
     A ringing element's basin in its damping ratio is narrow: the screens score each candidate where its grid and
     global starts stand, unrefined, and a valve near its right frequency at half its damping ratio can fit worse there
@@ -137,26 +139,18 @@ def ringing_pairs(engine, screens: TwoStateScreens, specs: dict, current_sse, n_
     frequency-damping start is the overdamped pair made of that pole
     (:func:`bayesdamper.diagnosis.unnamed.signature_poles`), not a measurement of its damping; so such a valve can rank
     behind one-parameter effects that gain under a percent and never be paired. The residual's spectral peaks measure
-    both: each start is the candidate's screen point on the two-state model with a peak's frequency and damping ratio,
-    refined for :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations, and the best is continued to
-    the search's budget (as :func:`fit_pair`'s starts are)."""
+    both: each is one more start, the candidate's screen point on the two-state model as fitted alone with the peak's
+    frequency and damping ratio, refined with the pair's own starts (each for
+    :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations, the best continued to the search's budget).
+    Without a peak nothing is fitted here (the pair is left to :func:`physical_pairs_left`)."""
     labels = [lab for lab in screens.alone if lab not in screens.paired and not holds_generic(lab, specs)
               and ringing_params(specs[lab]) is not None]
     peaks = residual_peaks(engine, screens.held, flow_for) if labels else []
     out = []
     for label in labels if peaks else []:
-        pair = (screens.ts.labels[0], label)
-        progress(f"diagnose: round 1, fitting the pair {pair[0]} + {label} from the residual's spectral peaks")
-        screens.paired.add(label)
         f_name, z_name = ringing_params(specs[label])
-        tried = [search_option(engine, [specs[pair[0]], specs[label]],
-                               {pair[0]: screens.held, label: {**screens.alone[label], f_name: f, z_name: z}}, {},
-                               current_sse, n_eff, flow_for, new=pair, max_iter=GLOBAL_LM_ITER) for f, z in peaks]
-        first = min(tried, key=lambda f: f.delta_bic)
-        tried.append(search_option(engine, [specs[pair[0]], specs[label]],
-                                   {lab: first.effects[specs[lab].effect] for lab in pair}, {}, current_sse,
-                                   n_eff, flow_for, new=pair, max_iter=LM_ITER - GLOBAL_LM_ITER))
-        out.append(min(tried, key=lambda f: f.delta_bic))
+        extra = [(screens.held, {**screens.alone[label], f_name: f, z_name: z}) for f, z in peaks]
+        out.append(fit_pair(engine, screens, label, fits, specs, current_sse, n_eff, flow_for, progress, extra))
     return out
 
 
@@ -204,11 +198,13 @@ def screen_on_two_state(engine, fits: list, specs: dict, remaining: list, curren
 
 
 def fit_pair(engine, screens: TwoStateScreens, label: str, fits: list, specs: dict, current_sse, n_eff, flow_for,
-             progress):
-    """The pair of the two-state model and ``label`` from its starts (:func:`two_state_pairs`): each refined for
+             progress, extra: list | None = None):
+    """The pair of the two-state model and ``label`` from its starts (:func:`two_state_pairs`) and the ``extra``
+    ones (``(two-state values, label's values)``): each refined for
     :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations, the best continued; the best fit."""
     pair = (screens.ts.labels[0], label)
-    progress(f"diagnose: round 1, fitting the pair {pair[0]} + {label}")
+    progress(f"diagnose: round 1, fitting the pair {pair[0]} + {label}"
+             + (" (also from the residual's spectral peaks)" if extra else ""))
     screens.paired.add(label)
     eff = specs[label].effect
     refilling = screens.refilling
@@ -222,6 +218,7 @@ def fit_pair(engine, screens: TwoStateScreens, label: str, fits: list, specs: di
     starts += ([(refilling, screens.on_refill[label])] if label in screens.on_refill
                else [(refilling, screens.alone[label]), (refilling, None)])
     starts += [(refilling, alone.effects[eff])] if alone is not None else []
+    starts += list(extra or [])
     # each start refined for GLOBAL_LM_ITER iterations, the best to the search's budget (as global starts are)
     tried = [search_option(engine, [specs[pair[0]], specs[label]],
                            {pair[0]: v_ts, **({label: v} if v is not None else {})},
