@@ -6,7 +6,7 @@ per-window α_V and p_R absorb part of it, and the two-state model fitted alone 
 refill (the refill conductance's profile is flat there) while the effect shows only with the accumulator refilling.
 :func:`two_state_pairs` screens every candidate on the two-state model held as fitted alone, and every library effect
 also on it held refilling (:func:`screen_on_two_state`), and fits the most promising jointly with it
-(:func:`fit_pair`), and each ringing library effect left out from the residual's spectral peaks
+(:func:`fit_pair`), and each ringing library effect left out from the same starts and the residual's spectral peaks
 (:func:`ringing_pairs`); before a generic option is named, :func:`physical_pairs_left` fits the library effects' pairs
 the screens did not rank among them. :func:`search_option` is the loop's fit of an option.
 """
@@ -73,8 +73,8 @@ def two_state_pairs(engine, fits: list, specs: dict, remaining: list, current_ss
     model, grid and global stage) and the candidate's own optimum where it improved alone. Each start is refined for
     :data:`~bayesdamper.diagnosis.global_stage.GLOBAL_LM_ITER` iterations and the best continued to the search's
     budget. The best fit is the option: a valve's profile has several basins, and the screen's coarse grid may start
-    it in the wrong one. Every ringing library effect left unpaired is then paired from the residual's spectral peaks
-    (:func:`ringing_pairs`). Returns those joint fits (options like any pair) and the screens
+    it in the wrong one. Every ringing library effect left unpaired is then paired from these starts and the
+    residual's spectral peaks (:func:`ringing_pairs`). Returns those joint fits (options like any pair) and the screens
     (:class:`TwoStateScreens`; a later round that holds the two-state model alone screens at each candidate's point
     on the model as fitted alone, ``alone``), None without a two-state fit. A pair the round has already fitted from
     its members' own optima is fitted from these starts too, and the best of all its fits replaces it in ``fits``:
