@@ -62,6 +62,7 @@ from bayesdamper.diagnosis.global_stage import (  # noqa: F401 - re-exported
     search_cost,
     spec_bound_flags,
     spectral_peaks,
+    window_peaks,
 )
 from bayesdamper.diagnosis.residual import _lag1
 from bayesdamper.diagnosis.spec import (  # noqa: F401 - re-exported: the search's types
@@ -386,8 +387,7 @@ def fit_joint(engine: ProfileEngine, specs: list[CandidateSpec], start: dict, fi
                         return []
                     rows = sel if screen is None else screen
                     resid = engine.evaluate(pack(e), flow, idx=rows)[2]
-                times = [getattr(engine.problems[int(k)], "time", None) for k in rows]
-                return spectral_peaks(resid, times) if all(t is not None for t in times) else []
+                return window_peaks(engine, rows, resid)
 
             extra, narrow = global_starts(flat, grid_dims + held_dims, best, lo, hi, data_pressures(engine), peaks)
             if narrow:

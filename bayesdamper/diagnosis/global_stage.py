@@ -166,6 +166,13 @@ def _axis_values(p: SearchParam, raw, j: int, lo, hi) -> list[float]:
     return out
 
 
+def window_peaks(engine, rows, residuals: list) -> list[tuple[float, float]]:
+    """:func:`spectral_peaks` of an evaluation's ``residuals`` on the engine's problems ``rows`` (their sample times);
+    none where a problem has no time axis."""
+    times = [getattr(engine.problems[int(k)], "time", None) for k in rows]
+    return spectral_peaks(residuals, times) if all(t is not None for t in times) else []
+
+
 def spectral_peaks(residuals: list, times: list) -> list[tuple[float, float]]:
     """(f [Hz], ζ) of the largest peaks of the residuals' pooled periodogram.
 

@@ -21,7 +21,7 @@ import numpy as np
 from bayesdamper.core.errors import BayesDamperError
 from bayesdamper.diagnosis.candidates import GLOBAL_LM_ITER, LM_ITER, fit_joint, search_params
 from bayesdamper.diagnosis.engine import LM_DTOL_SEARCH
-from bayesdamper.diagnosis.global_stage import narrow_kind, spectral_peaks
+from bayesdamper.diagnosis.global_stage import narrow_kind, window_peaks
 from bayesdamper.diagnosis.spec import best_and_physical, holds_generic
 from bayesdamper.physics.effects import EFFECTS
 from bayesdamper.physics.with_effects import effect_argument
@@ -122,9 +122,7 @@ def residual_peaks(engine, held: dict, flow_for) -> list[tuple[float, float]]:
     except BayesDamperError:
         return []
     rows = engine.screen if getattr(engine, "screen", None) is not None else np.arange(engine.n)
-    resid = engine.evaluate(effect_argument(e), flow, idx=rows)[2]
-    times = [getattr(engine.problems[int(k)], "time", None) for k in rows]
-    return spectral_peaks(resid, times) if all(t is not None for t in times) else []
+    return window_peaks(engine, rows, engine.evaluate(effect_argument(e), flow, idx=rows)[2])
 
 
 def ringing_pairs(engine, screens: TwoStateScreens, fits: list, specs: dict, current_sse, n_eff, flow_for,
