@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -246,3 +248,147 @@ def test_the_reports_lines_say_whether_a_search_afresh_went_on_and_what_it_found
     assert a.endswith("the option's fit stands") and "J 0.0050" not in a
     assert "-1040 -> -1100, J 0.0050 -> 0.0045 (delta-BIC_eff -3098 -> -3200): another basin" in b
     assert "screening" not in c and c.endswith("(delta-BIC_eff -3098 -> -3090): the option's fit stands")
+
+
+# ----------------------------------------------------------------------------------------------------
+# a generic option's physical rivals searched afresh before it is named (loop.rivals_afresh)
+
+GENERIC = "unnamed_dynamics@flow"
+
+
+def _specs(*labels):
+    return {lab: CandidateSpec(lab) for lab in labels}
+
+
+def _row(effect, score, j, **kw):
+    return {"effect": effect, "score": score, "J_pooled": j, "pair": "+" in effect, "supported": True, **kw}
+
+
+def test_the_best_physical_rivals_are_searched_afresh_and_a_rival_in_a_better_basin_is_re_made(monkeypatch):
+    """Of the rows, the generic option and a screened-only row are no rivals; of the others the two best by ΔBIC_eff
+    are searched (the third is not). The valve's search afresh finds a better basin: its fit is swapped in, its row
+    re-made from it (score, J, support) with its out-of-sample score dropped, and without speed folds it passes when
+    supported; its row keeps the searches. The mount has no narrow-basin parameter: nothing searched, its row
+    untouched."""
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = _specs("two_state", GENERIC, "poppet_valve", "series_compliance", "friction", "backlash")
+    valve = _fit("two_state+poppet_valve", -2400.0, OPTION)
+    mount = _fit("two_state+series_compliance", -2000.0, {})
+    third = _fit("two_state+friction", -1000.0, {})
+    found = _fit("two_state+poppet_valve", -7400.0, OPTION)
+    fits = [_fit(f"two_state+{GENERIC}", -3000.0, {}), valve, mount, third, _fit("two_state", -900.0, {})]
+    rows = [_row(f"two_state+{GENERIC}", -3000.0, 0.006), _row("two_state+poppet_valve", -2400.0, 0.0068,
+                                                                 lovo={"gain": 1.0}, passes=False),
+            _row("two_state+series_compliance", -2000.0, 0.0074, lovo={"gain": 2.0}, passes=True),
+            _row("two_state+friction", -1000.0, 0.008), _row("two_state", -900.0, 0.011),
+            _row("backlash", -5000.0, 0.005, held_selected=True)]
+    searched = []
+
+    def fake_research(search, fit, held, new, subset=None):
+        searched.append(fit.effect)
+        if fit is valve:
+            return found, [{"candidate": "poppet_valve", "replaced": True}]
+        return fit, []
+
+    monkeypatch.setattr(loop, "research_basins", fake_research)
+    engine = SimpleNamespace(screen=None, n=3)
+    out = loop.rivals_afresh(engine, rows, fits, specs, [], np.ones(3), np.ones(3), lambda e: None, 0.0117, None)
+    assert searched == ["two_state+poppet_valve", "two_state+series_compliance"]
+    assert out == [{"effect": "two_state+poppet_valve", "searches": [{"candidate": "poppet_valve",
+                                                                      "replaced": True}]}]
+    assert fits[1] is found and fits[2] is mount
+    v = rows[1]
+    assert v["score"] == -7400.0 and v["J_pooled"] == found.j_pooled and "lovo" not in v
+    assert v["supported"] and v["passes"]  # no folds: supported passes
+    assert v["basins_afresh"] == out[0]["searches"]
+    m = rows[2]
+    assert m["lovo"] == {"gain": 2.0} and m["passes"] and "basins_afresh" not in m
+
+
+def test_with_speed_folds_a_re_made_rival_waits_for_its_out_of_sample_score(monkeypatch):
+    import bayesdamper.diagnosis.loop as loop
+
+    specs = _specs("two_state", GENERIC, "poppet_valve")
+    valve = _fit("two_state+poppet_valve", -2400.0, OPTION)
+    fits = [valve]
+    rows = [_row("two_state+poppet_valve", -2400.0, 0.0068, lovo={"gain": 1.0}, passes=True)]
+    monkeypatch.setattr(loop, "research_basins", lambda search, fit, held, new, subset=None: (
+        _fit("two_state+poppet_valve", -7400.0, OPTION), [{"candidate": "poppet_valve", "replaced": True}]))
+    loop.rivals_afresh(SimpleNamespace(screen=None, n=3), rows, fits, specs, [], np.ones(3), np.ones(3),
+                       lambda e: None, 0.0117, folds=[[0], [1], [2]])
+    assert rows[0]["passes"] is False and "lovo" not in rows[0]
+
+
+def test_a_generic_option_is_not_named_over_a_rival_that_a_search_afresh_moves_to_a_better_basin(monkeypatch):
+    """The loop's wiring (fakes for the searches, no speed folds): in the first round the two-state + generic pair is
+    the only supported option, the two-state valve pair's refinement ended in a basin that does not lower J by the
+    fifth asked, and no pair is left to fit, so the generic option would be named. The rivals are searched afresh:
+    the valve's moves to a basin that passes, and the pair is selected instead and not searched afresh again; the
+    round's record gives the search and says the generic option was not named."""
+    import bayesdamper.diagnosis.loop as loop
+    from bayesdamper.run.progress import Progress
+
+    names = ["two_state", GENERIC, "poppet_valve"]
+    # J of the current model is 0.1 (unit residuals, forces of 10); supported: ΔBIC_eff <= -10 and J <= 0.08
+    table = {("two_state",): (-100.0, 0.085), (GENERIC,): (-50.0, 0.09), ("poppet_valve",): (-10.0, 0.098),
+             ("two_state", GENERIC): (-500.0, 0.04), ("two_state", "poppet_valve"): (-300.0, 0.083),
+             (GENERIC, "poppet_valve"): (-60.0, 0.088)}
+
+    def fit_of(labels, score, j):
+        return SimpleNamespace(labels=labels, effect="+".join(labels), delta_bic=score, j_pooled=j, params={},
+                               effects={lab.split("@")[0]: {} for lab in labels}, n_evaluations=0,
+                               polish_pending=False, warm=None, cost={})
+
+    def fake_search(engine, specs, start, fixed, *a, new=None, grid_only=False, **k):
+        labels = tuple(new) if new else tuple(s.label for s in specs)
+        return fit_of(labels, +5.0, 0.031) if grid_only else fit_of(labels, *table[labels])
+
+    researched = []
+
+    def fake_research(search, fit, held, new, subset=None):
+        researched.append(fit.effect)
+        if fit.effect == "two_state+poppet_valve":
+            return fit_of(fit.labels, -900.0, 0.03), [{"candidate": "poppet_valve", "replaced": True}]
+        return fit, []
+
+    engine = SimpleNamespace(evaluate=lambda *a, **k: (np.full(3, 50.0), None, [np.ones(50)] * 3),
+                             set_warm=lambda w: None, screen=None, n=3)
+    monkeypatch.setattr(loop, "search_option", fake_search)
+    monkeypatch.setattr(loop, "two_state_pairs", lambda *a: ([], SimpleNamespace(alone={})))
+    monkeypatch.setattr(loop, "physical_pairs_left", lambda *a: [])
+    monkeypatch.setattr(loop, "research_basins", fake_research)
+    monkeypatch.setattr(loop, "search_variants", lambda search, fit, held, new: (fit, [], {}))
+    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: fit_of(
+        ("two_state", "poppet_valve"), -905.0, 0.029))
+    monkeypatch.setattr(loop, "backward_check", lambda engine, sel, specs, fixed, *a: (sel, specs, fixed, []))
+    selected, fixed, rounds = loop.select_effects(engine, names, [np.full(50, 10.0)] * 3, lambda e: None,
+                                                  Progress(False))
+    assert selected == ["two_state", "poppet_valve"]
+    lr = rounds[0]["last_resort"]
+    assert lr["generic"] == f"two_state+{GENERIC}" and not lr["kept"]
+    assert lr["rivals_searched_afresh"] == [{"effect": "two_state+poppet_valve",
+                                             "searches": [{"candidate": "poppet_valve", "replaced": True}]}]
+    assert researched.count("two_state+poppet_valve") == 1  # selected, not searched afresh again
+    assert rounds[0]["selected"] == "two_state+poppet_valve"
+    scores = [r["score"] for r in rounds[0]["candidates"]]
+    assert scores == sorted(scores)  # the report's ranking holds the re-made row in its place
+
+
+def test_the_reports_line_on_a_generic_option_gives_its_rivals_searches_afresh():
+    from bayesdamper.diagnosis.summary import last_resort_lines
+
+    went_on = {"candidate": "poppet_valve", "delta_BIC_eff": -2414.0, "J_pooled": 0.0068, "continued": True,
+               "afresh_delta_BIC_eff": -7378.0, "afresh_J_pooled": 0.0023, "replaced": True}
+    stopped = {"candidate": "command_displacement", "delta_BIC_eff": -900.0, "J_pooled": 0.008, "continued": False,
+               "replaced": False}
+    rec = {"generic": f"two_state+{GENERIC}", "kept": False, "indistinguishable_from": [], "rivals": [],
+           "rivals_searched_afresh": [{"effect": "two_state+poppet_valve", "searches": [went_on]},
+                                      {"effect": "two_state+command_displacement", "searches": [stopped]}]}
+    (line,) = last_resort_lines([{"last_resort": rec}])
+    assert ("before it was named, the rivals' narrow-basin effects searched afresh: two_state+poppet_valve "
+            "(poppet_valve: delta-BIC_eff -2414 -> -7378, J 0.0068 -> 0.0023, replaces the fit); "
+            "two_state+command_displacement (command_displacement: no better on the screening windows, the fit "
+            "stands)") in line
+    (line,) = last_resort_lines([{"last_resort": {**rec, "rivals_searched_afresh": []}}])
+    assert "searched afresh" not in line

@@ -19,7 +19,8 @@ refinement that did not converge (:func:`polish_contenders`). A generic option i
 options out of sample (:func:`unnamed_last_resort`); where it would be named in the first round, the two-state
 model's pairs with every library effect whose screen improved on the two-state model alone are fitted first
 (:func:`~bayesdamper.diagnosis.two_state_pairs.physical_pairs_left`) and it is set against the physical options
-again.
+again; before it is named in any round, the best physical rivals' narrow-basin effects are searched afresh as a selected
+option's are (:func:`rivals_afresh`), and it is set against them again where that moved one to a better basin.
 Otherwise the answer is "none". The options' searches stop at the looser tolerance that ranking needs
 (:data:`~bayesdamper.diagnosis.engine.LM_DTOL_SEARCH`); the option selected has its narrow-basin effects searched
 afresh and its effects' variants in their place (:mod:`bayesdamper.diagnosis.basins`), and is refined to the reported
@@ -280,11 +281,23 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
                     best, last_resort = unnamed_last_resort(generic, rows, fits, specs, engine, folds, sel_specs,
                                                             fixed, current["sse"], n_eff, flow_for, lovo_cache)
                 last_resort["pairs_fitted_before_naming"] = [c.effect for c in more]
+            if last_resort["kept"]:  # before it is named: the physical rivals' narrow basins searched afresh
+                search_step("the physical rivals' narrow-basin effects searched afresh")
+                afresh = rivals_afresh(engine, rows, fits, specs, sel_specs, current["sse"], n_eff, flow_for, j_cur,
+                                       folds)
+                if any(a["replaced"] for r in afresh for a in r["searches"]):
+                    search_step("generic option against the physical ones")
+                    before = {k: v for k, v in last_resort.items() if k == "pairs_fitted_before_naming"}
+                    best, last_resort = unnamed_last_resort(generic, rows, fits, specs, engine, folds, sel_specs,
+                                                            fixed, current["sse"], n_eff, flow_for, lovo_cache)
+                    last_resort.update(before)
+                last_resort["rivals_searched_afresh"] = afresh
         rival = runner_up(rows, best)  # after the last resort: the option it selects, and every option it scored
         if best is not None and rival is not None and "_lovo" in best:
             best["against_runner_up"] = {"runner_up": rival["effect"], **paired(best["_lovo"], rival["_lovo"])}
         for r in rows:
             r.pop("_lovo", None)
+        rows.sort(key=lambda r: r["score"])  # by ΔBIC_eff, with the options fitted or re-fitted after the ranking
         rounds.append({"current_J_pooled": j_cur, "current_effects": list(selected), "candidates": rows,
                        "selected": best["effect"] if best else None, "last_resort": last_resort,
                        "rule": f"supported (delta_BIC_eff <= {SELECT_DELTA_BIC:g}, J reduction >= "
@@ -301,8 +314,9 @@ def select_effects(engine, names: list, forces: list[np.ndarray], flow_for, prog
         search = partial(search_option, engine, fixed={}, current_sse=current["sse"], n_eff=n_eff, flow_for=flow_for,
                          new=fit.labels)
         cand = sel_specs + [specs[lab] for lab in fit.labels]
-        fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):],
-                                                    subset=window_subset(engine))
+        if "basins_afresh" not in best:  # (a physical rival of a generic option has been searched afresh already)
+            fit, best["basins_afresh"] = research_basins(search, fit, sel_specs, cand[len(sel_specs):],
+                                                        subset=window_subset(engine))
         fit, best["variants"], added = search_variants(search, fit, sel_specs, cand[len(sel_specs):])
         if added:  # the option as selected is the rule's choice with a variant in an effect's place
             specs.update(added)
@@ -393,6 +407,42 @@ def unnamed_last_resort(best: dict, rows: list[dict], fits: list, specs: dict, e
         record["fallback"] = [{"effect": r["effect"], "passes": r["passes"]} for r in fallback]
         passing = [r for r in fallback if r["passes"]]
     return (max(passing, key=lambda r: r["lovo"]["gain"] if "lovo" in r else -r["score"]) if passing else None), record
+
+
+def rivals_afresh(engine, rows: list[dict], fits: list, specs: dict, sel_specs: list, current_sse, n_eff, flow_for,
+                  j_cur: float, folds) -> list[dict]:
+    """The :data:`PHYSICAL_RIVALS` best physical options of a round whose generic option is about to be named, each
+    with its narrow-basin effects searched afresh (:func:`~bayesdamper.diagnosis.basins.research_basins`, first on the
+    screening windows) as the option a round selects is: the generic option is named only over physical explanations
+    that reached their form's best basin, not over a valve whose refinement ended a basin away. A rival whose search
+    afresh replaces its fit (ΔBIC_eff lower by more than 10) gets the new fit in ``fits`` and its row re-made (its
+    out-of-sample score dropped, for the last resort to compute again; without speed folds it passes when supported);
+    the pairs' check over their better member is re-applied. Each rival searched keeps the searches in its row
+    (``basins_afresh``): selected, it is not searched afresh again.
+    Returns a record per rival searched: ``{"effect", "searches": research_basins' rows}``."""
+    mine = [r for r in rows if not holds_generic(r["effect"], specs) and not r.get("held_selected")]
+    out, remade = [], []
+    for row in sorted(mine, key=lambda r: r["score"])[:PHYSICAL_RIVALS]:
+        i = next(k for k, c in enumerate(fits) if c.effect == row["effect"])
+        fit = fits[i]
+        new = [specs[lab] for lab in fit.labels]
+        search = partial(search_option, engine, fixed={}, current_sse=current_sse, n_eff=n_eff, flow_for=flow_for,
+                         new=fit.labels)
+        again, searches = research_basins(search, fit, sel_specs, new, subset=window_subset(engine))
+        if not searches:  # no narrow-basin effect in the option
+            continue
+        out.append({"effect": row["effect"], "searches": searches})
+        if again is not fit:
+            fits[i] = again
+            for key in ("_lovo", "lovo", "passes", "over_better_member"):
+                row.pop(key, None)
+            row.update(_option_row(again, j_cur))
+            remade.append(row)
+        row["basins_afresh"] = searches  # selected, it is not searched afresh again
+    check_pairs(rows)
+    for row in remade:
+        row["passes"] = bool(folds is None and row["supported"])
+    return out
 
 
 def backward_check(engine, selected: list, sel_specs: list, fixed: dict, current: dict, forces, flow_for,

@@ -383,14 +383,27 @@ def last_resort_lines(rounds: list) -> list[str]:
                                + ("" if x["beats"] else ": not beaten") + ")" if "gain_over" in x else x["effect"]
                                for x in lr["rivals"]) or "none fitted"
             first = lr.get("pairs_fitted_before_naming") or []
+            afresh = "; ".join(f"{a['effect']} ({', '.join(_afresh_text(b) for b in a['searches'])})"
+                               for a in lr.get("rivals_searched_afresh") or [])
             lines.append(f"  {lr['generic']} against the best physical explanations (leave-velocities-out gains over "
                          f"each, named only when they pass the held-out rule"
                          + (f"; before it was named, also fitted: {', '.join(first)}" if first else "")
+                         + (f"; before it was named, the rivals' narrow-basin effects searched afresh: {afresh}"
+                            if afresh else "")
                          + f"): {rivals}: "
                          + ("named" if lr["kept"] else "not named")
                          + (f"; indistinguishable from {', '.join(lr['indistinguishable_from'])}."
                             if lr["indistinguishable_from"] else "."))
     return lines
+
+
+def _afresh_text(b: dict) -> str:
+    """One search afresh of :func:`~bayesdamper.diagnosis.basins.research_basins` in a few words."""
+    if not b.get("continued", True):
+        return f"{b['candidate']}: no better on the screening windows, the fit stands"
+    return (f"{b['candidate']}: delta-BIC_eff {b['delta_BIC_eff']:+.0f} -> {b['afresh_delta_BIC_eff']:+.0f}, J "
+            f"{b['J_pooled']:.4f} -> {b['afresh_J_pooled']:.4f}, " + ("replaces the fit" if b["replaced"]
+                                                                     else "the fit stands"))
 
 
 def basins_lines(rounds: list) -> list[str]:
