@@ -39,3 +39,21 @@ class FakeProfileEngine:
         perturbed = [self.evaluate(e, f, idx=idx)[2] for e, f in zip(effs, flows, strict=True)]
         return [None if r is None else np.column_stack([(p[i] - r) / h for p, h in zip(perturbed, hs, strict=True)])
                 for i, r in enumerate(resid)]
+
+
+def loop_fit(labels: tuple, score: float, j: float) -> SimpleNamespace:
+    """A stand-in for a :class:`~bayesdamper.diagnosis.spec.CandidateFit` of the options ``labels`` at ΔBIC_eff
+    ``score`` and pooled J ``j``, as the select-and-refit loop reads one."""
+    return SimpleNamespace(labels=labels, effect="+".join(labels), delta_bic=score, j_pooled=j, params={},
+                           effects={lab.split("@")[0]: {} for lab in labels}, n_evaluations=0, polish_pending=False,
+                           warm=None, cost={})
+
+
+def table_search(table: dict):
+    """A stand-in for :func:`bayesdamper.diagnosis.two_state_pairs.search_option` that looks each option up in
+    ``table`` (``{labels: (ΔBIC_eff, J)}``); a later round's screens (``grid_only``) improve on nothing."""
+    def search(engine, specs, start, fixed, *a, new=None, grid_only=False, **k):
+        labels = tuple(new) if new else tuple(s.label for s in specs)
+        return loop_fit(labels, +5.0, 0.031) if grid_only else loop_fit(labels, *table[labels])
+
+    return search

@@ -5,6 +5,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from profile_fakes import loop_fit, table_search
 
 from bayesdamper.diagnosis.attribution import MAX_FOLDS, LovoScore, lovo_passes, paired, runner_up, velocity_folds
 from bayesdamper.diagnosis.candidates import CandidateSpec
@@ -577,31 +578,20 @@ def test_a_generic_option_that_beats_the_rivals_fitted_loses_to_a_library_pair_f
              ("two_state", "friction"): (-110.0, 0.083), (generic, "friction"): (-60.0, 0.088),
              ("two_state", "poppet_valve"): (-800.0, 0.03)}
 
-    def fit_of(labels, score, j):
-        return SimpleNamespace(labels=labels, effect="+".join(labels), delta_bic=score, j_pooled=j, params={},
-                               effects={lab.split("@")[0]: {} for lab in labels}, n_evaluations=0,
-                               polish_pending=False, warm=None, cost={})
-
-    def fake_search(engine, specs, start, fixed, *a, new=None, grid_only=False, **k):
-        labels = tuple(new) if new else tuple(s.label for s in specs)
-        if grid_only:  # the second round's screens: nothing improves
-            return fit_of(labels, +5.0, 0.031)
-        return fit_of(labels, *table[labels])
-
     asked = []
 
     def fake_left(engine, screens, fits, specs, *a):
         asked.append(sorted(f.effect for f in fits))
-        return [fit_of(("two_state", "poppet_valve"), *table[("two_state", "poppet_valve")])]
+        return [loop_fit(("two_state", "poppet_valve"), *table[("two_state", "poppet_valve")])]
 
     engine = SimpleNamespace(evaluate=lambda *a, **k: (np.full(3, 50.0), None, [np.ones(50)] * 3),
                              set_warm=lambda w: None)
-    monkeypatch.setattr(loop, "search_option", fake_search)
+    monkeypatch.setattr(loop, "search_option", table_search(table))
     monkeypatch.setattr(loop, "two_state_pairs", lambda *a: ([], SimpleNamespace(alone={})))
     monkeypatch.setattr(loop, "physical_pairs_left", fake_left)
     monkeypatch.setattr(loop, "research_basins", lambda search, fit, held, new, subset=None: (fit, []))
     monkeypatch.setattr(loop, "search_variants", lambda search, fit, held, new: (fit, [], {}))
-    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: fit_of(
+    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: loop_fit(
         ("two_state", "poppet_valve"), -805.0, 0.029))
     monkeypatch.setattr(loop, "backward_check", lambda engine, sel, specs, fixed, *a: (sel, specs, fixed, []))
     selected, fixed, rounds = loop.select_effects(engine, names, [np.full(50, 10.0)] * 3, lambda e: None,

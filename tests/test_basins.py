@@ -6,6 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from profile_fakes import loop_fit, table_search
 
 import bayesdamper.diagnosis.basins as basins
 from bayesdamper.diagnosis.spec import CandidateFit, CandidateSpec
@@ -95,8 +96,6 @@ def test_with_a_subset_the_search_afresh_goes_on_to_every_window_only_if_better_
 def test_the_subset_of_a_search_afresh_is_whole_windows_only():
     """The engine's screening windows when they are windows; none without a screen, or when the screen is short
     stretches appended after the windows (a whole-record data set)."""
-    from types import SimpleNamespace
-
     assert list(basins.window_subset(SimpleNamespace(screen=np.array([0, 4, 8]), n=12))) == [0, 4, 8]
     assert basins.window_subset(SimpleNamespace(screen=None, n=12)) is None
     assert basins.window_subset(SimpleNamespace(screen=np.arange(12, 20), n=12)) is None
@@ -335,31 +334,22 @@ def test_a_generic_option_is_not_named_over_a_rival_that_a_search_afresh_moves_t
              ("two_state", GENERIC): (-500.0, 0.04), ("two_state", "poppet_valve"): (-300.0, 0.083),
              (GENERIC, "poppet_valve"): (-60.0, 0.088)}
 
-    def fit_of(labels, score, j):
-        return SimpleNamespace(labels=labels, effect="+".join(labels), delta_bic=score, j_pooled=j, params={},
-                               effects={lab.split("@")[0]: {} for lab in labels}, n_evaluations=0,
-                               polish_pending=False, warm=None, cost={})
-
-    def fake_search(engine, specs, start, fixed, *a, new=None, grid_only=False, **k):
-        labels = tuple(new) if new else tuple(s.label for s in specs)
-        return fit_of(labels, +5.0, 0.031) if grid_only else fit_of(labels, *table[labels])
-
     researched = []
 
     def fake_research(search, fit, held, new, subset=None):
         researched.append(fit.effect)
         if fit.effect == "two_state+poppet_valve":
-            return fit_of(fit.labels, -900.0, 0.03), [{"candidate": "poppet_valve", "replaced": True}]
+            return loop_fit(fit.labels, -900.0, 0.03), [{"candidate": "poppet_valve", "replaced": True}]
         return fit, []
 
     engine = SimpleNamespace(evaluate=lambda *a, **k: (np.full(3, 50.0), None, [np.ones(50)] * 3),
                              set_warm=lambda w: None, screen=None, n=3)
-    monkeypatch.setattr(loop, "search_option", fake_search)
+    monkeypatch.setattr(loop, "search_option", table_search(table))
     monkeypatch.setattr(loop, "two_state_pairs", lambda *a: ([], SimpleNamespace(alone={})))
     monkeypatch.setattr(loop, "physical_pairs_left", lambda *a: [])
     monkeypatch.setattr(loop, "research_basins", fake_research)
     monkeypatch.setattr(loop, "search_variants", lambda search, fit, held, new: (fit, [], {}))
-    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: fit_of(
+    monkeypatch.setattr(loop, "fit_joint", lambda engine, cand, start, *a, **k: loop_fit(
         ("two_state", "poppet_valve"), -905.0, 0.029))
     monkeypatch.setattr(loop, "backward_check", lambda engine, sel, specs, fixed, *a: (sel, specs, fixed, []))
     selected, fixed, rounds = loop.select_effects(engine, names, [np.full(50, 10.0)] * 3, lambda e: None,
