@@ -91,8 +91,20 @@ CASES = [(effect, kind) for effect in EFFECTS for kind in ("sine", "random")]
 #: Cases run in CI (``slow``); none: every diagnosis takes minutes and CI's time goes to the triangular table
 #: (tests/test_confusion.py). The table runs with ``make test-confusion``.
 IN_CI: tuple[tuple[str, str], ...] = ()
-#: Measured engine limitations: (effect, kind) -> reason (strict xfail).
-LIMITS: dict[tuple[str, str], str] = {}
+#: Measured engine limitations: (effect, kind) -> reason (strict xfail). The sines are 4 records, so 4 speed folds,
+#: and an option must predict every held-out speed better: there the right form falls short in sample or predicts one
+#: held-out speed worse, or a form of another family wins. Through random motion the same effects are named.
+_SINES = "4 sine records (4 speed folds)"
+LIMITS: dict[tuple[str, str], str] = {
+    ("backlash-0.4mm", "sine"): f"{_SINES}: the backlash lowers J by 8 % only, the generic option fails a "
+                                "held-out speed: none named",
+    ("servo-6Hz", "sine"): f"{_SINES}: a compliant mount named instead of the servo",
+    ("mount-2MN_m", "sine"): f"{_SINES}: the compliance (J -68 % in sample) predicts one held-out speed worse: "
+                             "none named",
+    ("poppet-6Hz", "sine"): f"{_SINES}: the valve, supported in sample, fails a held-out speed: none named",
+    ("inertance-20Hz", "sine"): f"{_SINES}: the valve forms fail a held-out speed, the generic option is not named "
+                                "over them: none named",
+}
 
 
 def _marks(case):
